@@ -1,0 +1,279 @@
+//! Blur scoring of images: Laplacian variance and the singular-value feature β.
+//!
+//! Two complementary no-reference scores per image:
+//! - [`laplacian_variance`]: variance of the 3×3 Laplacian; low = few sharp edges = blurred.
+//! - [`svd_beta`]: β of Su, Lu & Tan, "Blurred image region detection and classification",
+//!   ACM Multimedia 2011 — the share of the top-k singular values; high = blurred.
+//!
+//! Both thresholds are **data-dependent** (resolution, sensor noise, content; see the "Blur"
+//! section of science.md: noise alone adds ~130 to the Laplacian variance at σ = 0.01, and the
+//! β threshold has been measured anywhere from 0.47 to 0.6). The defaults in [`BlurParams`]
+//! are only starting points: [`score_images`] always returns the raw scores and a ranking so
+//! that users can calibrate thresholds on their own labelled frames.
+
+mod laplacian;
+mod plot;
+mod svd;
+
+#[cfg(test)]
+mod tests;
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{CoreError, CoreResult};
+use crate::io::{ImageLimits, decode_gray8};
+use crate::progress::Progress;
+
+pub use laplacian::laplacian_variance;
+pub use plot::render_svg;
+pub use svd::svd_beta;
+
+/// How the two per-score verdicts combine into `blurred`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub enum BlurRule {
+    /// Blurred if either score says so (catches more blur, more false alarms).
+    #[default]
+    Either,
+    /// Blurred only if both scores agree (fewer false alarms).
+    Both,
+    /// Only the Laplacian variance decides.
+    Laplacian,
+    /// Only β decides.
+    Beta,
+}
+
+/// Parameters of [`score_images`].
+///
+/// The thresholds are data-dependent (resolution, noise, content): the defaults are
+/// conventional starting points, not calibrated values. Score a few frames you know to be
+/// sharp and blurred, look at the raw scores in the report, and set the thresholds from them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub struct BlurParams {
+    /// Number of largest singular values in the numerator of β (Su et al. use 10). 1..=64.
+    pub k: usize,
+    /// An image is blurred by the Laplacian criterion if its Laplacian variance is below this.
+    /// Data-dependent: grows with resolution, contrast and noise (100 is the folklore value for
+    /// clean 640×480 frames; noisy frames can exceed it even when blurred). Must be ≥ 0.
+    pub laplacian_threshold: f64,
+    /// An image is blurred by the β criterion if β is above this (0.6 in the original paper's
+    /// data; 0.47–0.52 measured elsewhere). Must be within [0, 1].
+    pub beta_threshold: f64,
+    /// How the two criteria combine: `either` (default), `both`, `laplacian` or `beta`.
+    pub rule: BlurRule,
+}
+
+impl Default for BlurParams {
+    fn default() -> Self {
+        Self {
+            k: 10,
+            laplacian_threshold: 100.0,
+            beta_threshold: 0.6,
+            rule: BlurRule::Either,
+        }
+    }
+}
+
+impl BlurParams {
+    /// Check ranges; errors name the offending field.
+    pub fn validate(&self) -> CoreResult<()> {
+        if !(1..=64).contains(&self.k) {
+            return Err(CoreError::param("k", "must be between 1 and 64"));
+        }
+        if !self.laplacian_threshold.is_finite() || self.laplacian_threshold < 0.0 {
+            return Err(CoreError::param(
+                "laplacian_threshold",
+                "must be a finite number ≥ 0",
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.beta_threshold) {
+            return Err(CoreError::param("beta_threshold", "must be within [0, 1]"));
+        }
+        Ok(())
+    }
+
+    /// The verdict for one image's scores.
+    pub fn is_blurred(&self, laplacian_variance: f64, svd_beta: f64) -> bool {
+        let lap = laplacian_variance < self.laplacian_threshold;
+        let beta = svd_beta > self.beta_threshold;
+        match self.rule {
+            BlurRule::Either => lap || beta,
+            BlurRule::Both => lap && beta,
+            BlurRule::Laplacian => lap,
+            BlurRule::Beta => beta,
+        }
+    }
+}
+
+/// Scores of one image.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub struct ImageScore {
+    /// The name the image was submitted under.
+    pub name: String,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Variance of the 3×3 Laplacian response on 0..255 grey values (higher = sharper);
+    /// equals OpenCV's `cv2.Laplacian(gray, CV_64F, ksize=1).var()`.
+    pub laplacian_variance: f64,
+    /// β = share of the top-k singular values, in [0, 1] (higher = blurrier).
+    pub svd_beta: f64,
+    /// Verdict under the request's thresholds and rule (thresholds are data-dependent).
+    pub blurred: bool,
+    /// Position in the ranking by Laplacian variance: 1 = sharpest.
+    pub rank: usize,
+}
+
+/// Minimum, median and maximum of one score over the images.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub struct Stats {
+    /// Smallest value.
+    pub min: f64,
+    /// Median (mean of the two middle values for an even count).
+    pub median: f64,
+    /// Largest value.
+    pub max: f64,
+}
+
+impl Stats {
+    fn of(values: impl Iterator<Item = f64>) -> Self {
+        let mut v: Vec<f64> = values.collect();
+        if v.is_empty() {
+            return Self {
+                min: 0.0,
+                median: 0.0,
+                max: 0.0,
+            };
+        }
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        let median = if n % 2 == 1 {
+            v[n / 2]
+        } else {
+            0.5 * (v[n / 2 - 1] + v[n / 2])
+        };
+        Self {
+            min: v[0],
+            median,
+            max: v[n - 1],
+        }
+    }
+}
+
+/// Aggregate view of a [`BlurReport`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub struct BlurSummary {
+    /// Number of images scored.
+    pub count: usize,
+    /// Number of images judged blurred.
+    pub blurred_count: usize,
+    /// Laplacian variance over the images.
+    pub laplacian: Stats,
+    /// β over the images.
+    pub beta: Stats,
+}
+
+/// Result of [`score_images`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub struct BlurReport {
+    /// One entry per image, in input order, with the raw scores.
+    pub images: Vec<ImageScore>,
+    /// Image names from sharpest to blurriest by Laplacian variance.
+    pub ranking: Vec<String>,
+    /// Counts and score statistics.
+    pub summary: BlurSummary,
+}
+
+/// Score every image: decode (lazily: `load(i)` returns the bytes of image `i`), compute
+/// [`laplacian_variance`] and [`svd_beta`], judge with the thresholds of `params`, rank by
+/// Laplacian variance.
+///
+/// Images run in parallel on the rayon pool; each is decoded only when its turn comes, so memory
+/// stays at a few images regardless of the batch size. Cancellation is checked before each
+/// image and reported as [`CoreError::Canceled`]; progress is reported as step `"scoring"`.
+/// An image that cannot be loaded or decoded fails the whole call with
+/// [`CoreError::InvalidInput`] naming it.
+///
+/// The thresholds are data-dependent (resolution, noise, content): the report always carries the
+/// raw scores so users can calibrate thresholds on their own data.
+pub fn score_images<F>(
+    names: &[String],
+    load: F,
+    params: &BlurParams,
+    limits: &ImageLimits,
+    progress: &dyn Progress,
+) -> CoreResult<BlurReport>
+where
+    F: Fn(usize) -> CoreResult<Vec<u8>> + Sync,
+{
+    params.validate()?;
+    if names.is_empty() {
+        return Err(CoreError::input("no images to score"));
+    }
+    let total = names.len() as u64;
+    let done = AtomicU64::new(0);
+    progress.report("scoring", 0, total);
+    let scored: Vec<(u32, u32, f64, f64)> = (0..names.len())
+        .into_par_iter()
+        .map(|i| {
+            progress.check()?;
+            let name = &names[i];
+            let named = |e: CoreError| match e {
+                CoreError::InvalidInput(m) => CoreError::input(format!("{name}: {m}")),
+                other => other,
+            };
+            let bytes = load(i).map_err(named)?;
+            let gray = decode_gray8(&bytes, limits).map_err(named)?;
+            drop(bytes);
+            progress.check()?;
+            let lap = laplacian_variance(&gray);
+            let beta = svd_beta(&gray, params.k).map_err(named)?;
+            let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+            progress.report("scoring", d, total);
+            Ok((gray.width, gray.height, lap, beta))
+        })
+        .collect::<CoreResult<_>>()?;
+
+    // Ranking: sharpest (highest variance) first; ties keep input order.
+    let mut order: Vec<usize> = (0..names.len()).collect();
+    order.sort_by(|&a, &b| scored[b].2.total_cmp(&scored[a].2));
+    let mut rank = vec![0usize; names.len()];
+    for (pos, &i) in order.iter().enumerate() {
+        rank[i] = pos + 1;
+    }
+    let images: Vec<ImageScore> = scored
+        .iter()
+        .enumerate()
+        .map(|(i, &(width, height, lap, beta))| ImageScore {
+            name: names[i].clone(),
+            width,
+            height,
+            laplacian_variance: lap,
+            svd_beta: beta,
+            blurred: params.is_blurred(lap, beta),
+            rank: rank[i],
+        })
+        .collect();
+    let summary = BlurSummary {
+        count: images.len(),
+        blurred_count: images.iter().filter(|s| s.blurred).count(),
+        laplacian: Stats::of(images.iter().map(|s| s.laplacian_variance)),
+        beta: Stats::of(images.iter().map(|s| s.svd_beta)),
+    };
+    Ok(BlurReport {
+        ranking: order.iter().map(|&i| names[i].clone()).collect(),
+        images,
+        summary,
+    })
+}

@@ -1,0 +1,13 @@
+//! Caliper's core: calibration numerics with no I/O beyond decoding bytes handed to it,
+//! no async and no HTTP. Every long-running algorithm takes a [`progress::Progress`] so that
+//! callers (the worker pool, the CLI) can show progress and cancel cooperatively.
+
+pub mod blur;
+pub mod camera;
+pub mod error;
+pub mod io;
+pub mod lie;
+pub mod progress;
+
+pub use error::{CoreError, CoreResult};
+pub use progress::{NoProgress, Progress};

@@ -1,0 +1,185 @@
+//! `/v1/devices/{serial}/documents`: immutable, versioned parameter documents.
+
+use axum::extract::State;
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::extract::ApiPath;
+use crate::clock::rfc3339;
+use crate::error::{ApiError, ApiResult, Problem};
+use crate::state::AppState;
+use crate::store::DocumentSummary;
+
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(list_device_documents))
+        .routes(routes!(list_revisions))
+        .routes(routes!(latest_document))
+        .routes(routes!(document_revision))
+}
+
+/// The documents of a device: the latest revision per sensor and kind.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct DeviceDocuments {
+    pub device: String,
+    pub documents: Vec<DocumentSummary>,
+}
+
+/// One revision in a revision list.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct RevisionView {
+    pub rev: u64,
+    pub etag: String,
+    pub schema: String,
+    /// RFC 3339.
+    pub created_at: String,
+    /// The job that wrote it.
+    pub job: Option<uuid::Uuid>,
+    pub href: String,
+}
+
+/// Respond with a JSON body and its ETag, or 304 if the client has it already.
+pub fn json_with_etag(body: String, etag: &str, headers: &HeaderMap) -> Response {
+    let quoted = format!("\"{etag}\"");
+    let matches = headers
+        .get(header::IF_NONE_MATCH)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| {
+            v.split(',')
+                .map(|t| t.trim().trim_start_matches("W/"))
+                .any(|t| t == quoted || t == "*")
+        });
+    let etag_value = HeaderValue::from_str(&quoted).ok();
+    let mut resp = if matches {
+        StatusCode::NOT_MODIFIED.into_response()
+    } else {
+        let mut r = body.into_response();
+        r.headers_mut().insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        );
+        r
+    };
+    if let Some(v) = etag_value {
+        resp.headers_mut().insert(header::ETAG, v);
+    }
+    resp.headers_mut()
+        .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+    resp
+}
+
+/// List a device's documents (latest revision of each sensor and kind).
+#[utoipa::path(
+    get, path = "/v1/devices/{serial}/documents", tag = "documents",
+    params(("serial" = String, Path, description = "Device serial")),
+    responses((status = 200, description = "Documents of the device (empty if none)", body = DeviceDocuments))
+)]
+pub async fn list_device_documents(
+    State(state): State<AppState>,
+    ApiPath(serial): ApiPath<String>,
+) -> ApiResult<axum::Json<DeviceDocuments>> {
+    let documents = state.store().list_documents(&serial).await?;
+    Ok(axum::Json(DeviceDocuments {
+        device: serial,
+        documents,
+    }))
+}
+
+/// List all revisions of one document, newest first.
+#[utoipa::path(
+    get, path = "/v1/devices/{serial}/documents/{sensor}/{kind}", tag = "documents",
+    params(("serial" = String, Path, description = "Device serial"),
+           ("sensor" = String, Path, description = "Sensor name"),
+           ("kind" = String, Path, description = "Job kind")),
+    responses(
+        (status = 200, description = "Revisions", body = Vec<RevisionView>),
+        (status = 404, description = "No such document", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn list_revisions(
+    State(state): State<AppState>,
+    ApiPath((serial, sensor, kind)): ApiPath<(String, String, String)>,
+) -> ApiResult<axum::Json<Vec<RevisionView>>> {
+    let revs = state
+        .store()
+        .list_revisions(&serial, &sensor, &kind)
+        .await?;
+    if revs.is_empty() {
+        return Err(ApiError::not_found(format!(
+            "document {kind} of {serial}/{sensor}"
+        )));
+    }
+    Ok(axum::Json(
+        revs.into_iter()
+            .map(|d| RevisionView {
+                href: format!("/v1/devices/{serial}/documents/{sensor}/{kind}/{}", d.rev),
+                rev: d.rev,
+                etag: d.etag,
+                schema: d.schema,
+                created_at: rfc3339(d.created_at),
+                job: d.job_id,
+            })
+            .collect(),
+    ))
+}
+
+/// The latest revision of a document. Supports `If-None-Match` (304).
+#[utoipa::path(
+    get, path = "/v1/devices/{serial}/documents/{sensor}/{kind}/latest", tag = "documents",
+    params(("serial" = String, Path, description = "Device serial"),
+           ("sensor" = String, Path, description = "Sensor name"),
+           ("kind" = String, Path, description = "Job kind, e.g. blur_score"),
+           ("If-None-Match" = Option<String>, Header, description = "ETag from an earlier response")),
+    responses(
+        (status = 200, description = "The document", body = Object, headers(("ETag" = String, description = "Quoted document etag"))),
+        (status = 304, description = "Not modified"),
+        (status = 404, description = "No such document", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn latest_document(
+    State(state): State<AppState>,
+    ApiPath((serial, sensor, kind)): ApiPath<(String, String, String)>,
+    headers: HeaderMap,
+) -> ApiResult<Response> {
+    let d = state
+        .store()
+        .get_document(&serial, &sensor, &kind, None)
+        .await?
+        .ok_or_else(|| ApiError::not_found(format!("document {kind} of {serial}/{sensor}")))?;
+    Ok(json_with_etag(d.body, &d.etag, &headers))
+}
+
+/// A pinned revision of a document. Supports `If-None-Match` (304).
+#[utoipa::path(
+    get, path = "/v1/devices/{serial}/documents/{sensor}/{kind}/{rev}", tag = "documents",
+    params(("serial" = String, Path, description = "Device serial"),
+           ("sensor" = String, Path, description = "Sensor name"),
+           ("kind" = String, Path, description = "Job kind"),
+           ("rev" = u64, Path, description = "Revision, from 1"),
+           ("If-None-Match" = Option<String>, Header, description = "ETag from an earlier response")),
+    responses(
+        (status = 200, description = "The document", body = Object, headers(("ETag" = String, description = "Quoted document etag"))),
+        (status = 304, description = "Not modified"),
+        (status = 404, description = "No such document or revision", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn document_revision(
+    State(state): State<AppState>,
+    ApiPath((serial, sensor, kind, rev)): ApiPath<(String, String, String, u64)>,
+    headers: HeaderMap,
+) -> ApiResult<Response> {
+    let d = state
+        .store()
+        .get_document(&serial, &sensor, &kind, Some(rev))
+        .await?
+        .ok_or_else(|| {
+            ApiError::not_found(format!(
+                "revision {rev} of document {kind} of {serial}/{sensor}"
+            ))
+        })?;
+    Ok(json_with_etag(d.body, &d.etag, &headers))
+}

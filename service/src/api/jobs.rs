@@ -1,0 +1,599 @@
+//! `/v1/jobs`: queue, read, list, cancel, follow (SSE), results and artifacts.
+
+use std::convert::Infallible;
+use std::time::Duration;
+
+use axum::extract::State;
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use futures_util::Stream;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use utoipa::{IntoParams, ToSchema};
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+use uuid::Uuid;
+
+use super::extract::{ApiJson, ApiPath, ApiQuery};
+use super::views::{ArtifactList, ArtifactView, JobKindView, JobPage, JobView};
+use crate::error::{ApiError, ApiResult, Problem};
+use crate::jobs::{find_kind, kinds};
+use crate::state::AppState;
+use crate::store::{CancelJob, CreateJob, JobFilter, JobStatus, NewJob};
+
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(create_job, list_jobs))
+        .routes(routes!(get_job))
+        .routes(routes!(cancel_job))
+        .routes(routes!(job_events))
+        .routes(routes!(job_result))
+        .routes(routes!(list_artifacts))
+        .routes(routes!(get_artifact))
+        .routes(routes!(list_job_kinds))
+}
+
+/// Body of `POST /v1/jobs`.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({
+    "kind": "blur_score", "dataset": "01935f2c-7a4e-7cc2-9d1e-3b8a2f6c1d00",
+    "params": {"k": 10}, "device": "cam-0042", "sensor": "cam0"
+}))]
+pub struct CreateJobRequest {
+    /// Job kind (see `GET /v1/job-kinds`).
+    pub kind: String,
+    /// Dataset id.
+    pub dataset: Uuid,
+    /// Kind-specific parameters; omitted fields take their defaults. `blur_score`: see the
+    /// `BlurParams` schema.
+    #[serde(default = "empty_object")]
+    #[schema(value_type = Object)]
+    pub params: Value,
+    /// Device serial: a succeeded job files its document under this device.
+    /// Letters, digits, `.`, `_`, `-`; at most 128.
+    #[serde(default)]
+    pub device: Option<String>,
+    /// Sensor name on the device (default `default`); same alphabet as `device`.
+    #[serde(default)]
+    pub sensor: Option<String>,
+}
+
+fn empty_object() -> Value {
+    Value::Object(Default::default())
+}
+
+fn valid_name(s: &str) -> bool {
+    !s.is_empty()
+        && s.len() <= 128
+        && s.chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'))
+        && s != "."
+        && s != ".."
+}
+
+/// Queue a job.
+///
+/// Parameters are validated before queueing. With an `Idempotency-Key` header, repeating the
+/// same request returns the job created the first time (200); the same key with a different
+/// body is a 409.
+#[utoipa::path(
+    post, path = "/v1/jobs", tag = "jobs",
+    request_body = CreateJobRequest,
+    params(("Idempotency-Key" = Option<String>, Header, description = "Client-chosen key (1–255 printable ASCII characters) making the request safe to retry")),
+    responses(
+        (status = 202, description = "Queued", body = JobView, headers(("Location" = String, description = "URL of the job"))),
+        (status = 200, description = "Same Idempotency-Key and body as an earlier request: that job", body = JobView),
+        (status = 400, description = "Malformed JSON or header", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "Idempotency key reused with another body", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Not JSON", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "invalid_body, unknown_job_kind, invalid_param, unknown_dataset, dataset_kind_mismatch", body = Problem, content_type = "application/problem+json"),
+        (status = 429, description = "Queue full; see Retry-After", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn create_job(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    ApiJson(req): ApiJson<CreateJobRequest>,
+) -> ApiResult<Response> {
+    let key = match headers.get("idempotency-key") {
+        None => None,
+        Some(v) => {
+            let s = v.to_str().ok().filter(|s| !s.is_empty() && s.len() <= 255);
+            Some(
+                s.ok_or_else(|| {
+                    ApiError::new(
+                        "invalid_header",
+                        "Idempotency-Key must be 1–255 printable ASCII characters",
+                    )
+                    .with_field("Idempotency-Key")
+                })?
+                .to_string(),
+            )
+        }
+    };
+    let kind = find_kind(&req.kind).ok_or_else(|| {
+        let known: Vec<&str> = kinds().iter().map(|k| k.name()).collect();
+        ApiError::new(
+            "unknown_job_kind",
+            format!(
+                "unknown job kind {:?}; known: {}",
+                req.kind,
+                known.join(", ")
+            ),
+        )
+        .with_field("kind")
+    })?;
+    if !req.params.is_object() {
+        return Err(
+            ApiError::new("invalid_param", "params must be a JSON object").with_field("params"),
+        );
+    }
+    for (name, v) in [("device", &req.device), ("sensor", &req.sensor)] {
+        if let Some(s) = v
+            && !valid_name(s)
+        {
+            return Err(ApiError::new(
+                "invalid_body",
+                format!("{name} must be 1–128 characters of letters, digits, `.`, `_`, `-`"),
+            )
+            .with_field(name));
+        }
+    }
+    if req.sensor.is_some() && req.device.is_none() {
+        return Err(ApiError::new("invalid_body", "sensor requires device").with_field("sensor"));
+    }
+    let params = kind.normalize_params(&req.params)?;
+    let dataset = state
+        .store()
+        .get_dataset(req.dataset)
+        .await?
+        .ok_or_else(|| {
+            ApiError::new(
+                "unknown_dataset",
+                format!("dataset {} does not exist", req.dataset),
+            )
+            .with_field("dataset")
+        })?;
+    if dataset.kind != kind.dataset_kind() {
+        return Err(ApiError::new(
+            "dataset_kind_mismatch",
+            format!(
+                "{} needs a dataset of kind {}, but {} holds {}",
+                kind.name(),
+                kind.dataset_kind().as_str(),
+                dataset.id,
+                dataset.kind.as_str()
+            ),
+        )
+        .with_field("dataset"));
+    }
+    let sensor = req
+        .device
+        .as_ref()
+        .map(|_| req.sensor.clone().unwrap_or_else(|| "default".into()));
+    let request_hash = crate::document::sha256_hex(
+        crate::document::canonical_json(&serde_json::json!({
+            "kind": kind.name(), "dataset": dataset.id, "params": params,
+            "device": req.device, "sensor": sensor,
+        }))
+        .as_bytes(),
+    );
+    let new = NewJob {
+        id: Uuid::now_v7(),
+        kind: kind.name().to_string(),
+        dataset_id: dataset.id,
+        device: req.device.clone(),
+        sensor,
+        params,
+        max_attempts: state.config().max_attempts,
+        idempotency_key: key,
+        request_hash: Some(request_hash),
+        now: crate::clock::now_ms(),
+    };
+    match state
+        .store()
+        .create_job(new, state.config().max_queued_jobs)
+        .await?
+    {
+        CreateJob::Created(job) => {
+            state.wake_workers();
+            metrics::counter!("caliper_jobs_created_total", "kind" => job.kind.clone())
+                .increment(1);
+            let location = format!("/v1/jobs/{}", job.id);
+            Ok((
+                StatusCode::ACCEPTED,
+                [(header::LOCATION, location)],
+                axum::Json(JobView::from(&job)),
+            )
+                .into_response())
+        }
+        CreateJob::Existing(job) => {
+            let location = format!("/v1/jobs/{}", job.id);
+            Ok((
+                StatusCode::OK,
+                [(header::LOCATION, location)],
+                axum::Json(JobView::from(&job)),
+            )
+                .into_response())
+        }
+        CreateJob::Conflict(job) => Err(ApiError::new(
+            "idempotency_conflict",
+            format!(
+                "Idempotency-Key was used for job {} with a different request",
+                job.id
+            ),
+        )
+        .with_field("Idempotency-Key")),
+        CreateJob::QueueFull => {
+            let mut e = ApiError::new(
+                "queue_full",
+                format!(
+                    "{} jobs are queued; try again later",
+                    state.config().max_queued_jobs
+                ),
+            );
+            e.retry_after = Some(5);
+            Err(e)
+        }
+        CreateJob::UnknownDataset => Err(ApiError::new(
+            "unknown_dataset",
+            format!("dataset {} does not exist", req.dataset),
+        )
+        .with_field("dataset")),
+    }
+}
+
+/// Filters of the job list.
+#[derive(Debug, Deserialize, IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct JobQuery {
+    /// Comma-separated statuses: queued, running, succeeded, failed, canceled.
+    pub status: Option<String>,
+    /// Comma-separated job kinds.
+    pub kind: Option<String>,
+    /// Device serial.
+    pub device: Option<String>,
+    /// Dataset id.
+    pub dataset: Option<Uuid>,
+    /// Created at or after this time (RFC 3339).
+    pub created_after: Option<String>,
+    /// Created before this time (RFC 3339).
+    pub created_before: Option<String>,
+    /// Page size, 1–100 (default 20).
+    pub limit: Option<u32>,
+    /// `next_cursor` of the previous page.
+    pub cursor: Option<Uuid>,
+}
+
+/// List jobs, newest first, with filters and cursor paging.
+#[utoipa::path(
+    get, path = "/v1/jobs", tag = "jobs", params(JobQuery),
+    responses(
+        (status = 200, description = "A page of jobs", body = JobPage),
+        (status = 400, description = "Invalid query", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn list_jobs(
+    State(state): State<AppState>,
+    ApiQuery(q): ApiQuery<JobQuery>,
+) -> ApiResult<axum::Json<JobPage>> {
+    let limit = super::page_limit(q.limit)?;
+    let split = |s: &Option<String>| -> Vec<String> {
+        s.as_deref()
+            .map(|v| {
+                v.split(',')
+                    .map(str::trim)
+                    .filter(|x| !x.is_empty())
+                    .map(String::from)
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let statuses = split(&q.status)
+        .iter()
+        .map(|s| {
+            JobStatus::parse(s).ok_or_else(|| {
+                ApiError::new("invalid_query", format!("unknown status {s:?}")).with_field("status")
+            })
+        })
+        .collect::<ApiResult<Vec<_>>>()?;
+    let time = |s: &Option<String>, name: &str| -> ApiResult<Option<i64>> {
+        s.as_deref()
+            .map(|t| {
+                crate::clock::parse_rfc3339(t).ok_or_else(|| {
+                    ApiError::new(
+                        "invalid_query",
+                        format!("{name} must be an RFC 3339 time, got {t:?}"),
+                    )
+                    .with_field(name)
+                })
+            })
+            .transpose()
+    };
+    let filter = JobFilter {
+        statuses,
+        kinds: split(&q.kind),
+        device: q.device.clone(),
+        dataset: q.dataset,
+        created_after: time(&q.created_after, "created_after")?,
+        created_before: time(&q.created_before, "created_before")?,
+        before_id: q.cursor,
+        limit: limit + 1,
+    };
+    let mut items = state.store().list_jobs(&filter).await?;
+    let next_cursor = if items.len() > limit as usize {
+        items.truncate(limit as usize);
+        items.last().map(|j| j.id.to_string())
+    } else {
+        None
+    };
+    Ok(axum::Json(JobPage {
+        items: items.iter().map(JobView::from).collect(),
+        next_cursor,
+    }))
+}
+
+/// Get a job.
+#[utoipa::path(
+    get, path = "/v1/jobs/{id}", tag = "jobs",
+    params(("id" = Uuid, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "The job", body = JobView),
+        (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn get_job(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<Uuid>,
+) -> ApiResult<axum::Json<JobView>> {
+    let job = state
+        .store()
+        .get_job(id)
+        .await?
+        .ok_or_else(|| ApiError::not_found(format!("job {id}")))?;
+    Ok(axum::Json(JobView::from(&job)))
+}
+
+/// Cancel a job.
+///
+/// A queued job is canceled at once (200). A running job is flagged (202): the algorithm stops
+/// at its next check and the job ends `canceled`. A finished job cannot be canceled (409).
+#[utoipa::path(
+    post, path = "/v1/jobs/{id}/cancel", tag = "jobs",
+    params(("id" = Uuid, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "Canceled", body = JobView),
+        (status = 202, description = "Cancellation requested; the job stops shortly", body = JobView),
+        (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "Already finished (`job_finished`)", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn cancel_job(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<Uuid>,
+) -> ApiResult<Response> {
+    match state.store().cancel_job(id, crate::clock::now_ms()).await? {
+        CancelJob::NotFound => Err(ApiError::not_found(format!("job {id}"))),
+        CancelJob::Canceled(job) => {
+            state.publish(crate::state::JobEvent {
+                id,
+                event: "status",
+                status: job.status,
+                progress: None,
+            });
+            Ok((StatusCode::OK, axum::Json(JobView::from(&job))).into_response())
+        }
+        CancelJob::Requested(job) => {
+            state.signal_cancel(id);
+            Ok((StatusCode::ACCEPTED, axum::Json(JobView::from(&job))).into_response())
+        }
+        CancelJob::Finished(job) => Err(ApiError::new(
+            "job_finished",
+            format!("job {id} already ended as {}", job.status.as_str()),
+        )),
+    }
+}
+
+/// Follow a job: Server-Sent Events.
+///
+/// Sends the current state first (`event: status`), then `progress` and `status` events as
+/// they happen, and closes after the terminal status. Each `data` is
+/// `{"id", "status", "progress"?}`.
+#[utoipa::path(
+    get, path = "/v1/jobs/{id}/events", tag = "jobs",
+    params(("id" = Uuid, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "Event stream", content_type = "text/event-stream", body = String),
+        (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn job_events(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<Uuid>,
+) -> ApiResult<Sse<impl Stream<Item = Result<Event, Infallible>>>> {
+    // Subscribe before reading the current state so no change falls between the two.
+    let mut rx = state.subscribe();
+    let job = state
+        .store()
+        .get_job(id)
+        .await?
+        .ok_or_else(|| ApiError::not_found(format!("job {id}")))?;
+    let (tx, out) = tokio::sync::mpsc::channel::<Event>(16);
+    let st = state.clone();
+    tokio::spawn(async move {
+        let to_event = |kind: &str, status: JobStatus, progress: Option<Value>| {
+            let data = serde_json::json!({"id": id, "status": status, "progress": progress});
+            Event::default().event(kind).data(data.to_string())
+        };
+        let mut last_status = job.status;
+        if tx
+            .send(to_event("status", job.status, job.progress.clone()))
+            .await
+            .is_err()
+        {
+            return;
+        }
+        if job.status.is_terminal() {
+            return;
+        }
+        loop {
+            tokio::select! {
+                ev = rx.recv() => match ev {
+                    Ok(ev) if ev.id == id => {
+                        last_status = ev.status;
+                        if tx.send(to_event(ev.event, ev.status, ev.progress)).await.is_err() { return; }
+                        if ev.status.is_terminal() { return; }
+                    }
+                    Ok(_) => {}
+                    Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                    Err(_) => return,
+                },
+                // Fallback poll: changes made by another process, or events we lagged behind on.
+                _ = tokio::time::sleep(Duration::from_secs(2)) => {
+                    match st.store().get_job(id).await {
+                        Ok(Some(j)) if j.status != last_status => {
+                            last_status = j.status;
+                            if tx.send(to_event("status", j.status, j.progress.clone())).await.is_err() { return; }
+                            if j.status.is_terminal() { return; }
+                        }
+                        Ok(None) => return,
+                        _ => {}
+                    }
+                }
+            }
+        }
+    });
+    let stream = futures_util::stream::unfold(out, |mut rx| async move {
+        rx.recv().await.map(|e| (Ok::<_, Infallible>(e), rx))
+    });
+    Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
+}
+
+/// The result document of a succeeded job (the same body as its device document revision,
+/// if it has one). Supports `If-None-Match`.
+#[utoipa::path(
+    get, path = "/v1/jobs/{id}/result", tag = "jobs",
+    params(("id" = Uuid, Path, description = "Job id"),
+           ("If-None-Match" = Option<String>, Header, description = "ETag from an earlier response")),
+    responses(
+        (status = 200, description = "The document", body = Object, headers(("ETag" = String, description = "Quoted document etag"))),
+        (status = 304, description = "Not modified"),
+        (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "The job has not succeeded (`result_not_ready`)", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn job_result(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<Uuid>,
+    headers: HeaderMap,
+) -> ApiResult<Response> {
+    let job = state
+        .store()
+        .get_job(id)
+        .await?
+        .ok_or_else(|| ApiError::not_found(format!("job {id}")))?;
+    let Some(result) = job.result.filter(|_| job.status == JobStatus::Succeeded) else {
+        return Err(ApiError::new(
+            "result_not_ready",
+            format!(
+                "job {id} is {}; a result exists once it has succeeded",
+                job.status.as_str()
+            ),
+        ));
+    };
+    let etag = result
+        .get("etag")
+        .and_then(Value::as_str)
+        .unwrap_or("")
+        .to_string();
+    Ok(super::documents::json_with_etag(
+        crate::document::canonical_json(&result),
+        &etag,
+        &headers,
+    ))
+}
+
+/// List a job's artifacts.
+#[utoipa::path(
+    get, path = "/v1/jobs/{id}/artifacts", tag = "jobs",
+    params(("id" = Uuid, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "Artifacts", body = ArtifactList),
+        (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn list_artifacts(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<Uuid>,
+) -> ApiResult<axum::Json<ArtifactList>> {
+    if state.store().get_job(id).await?.is_none() {
+        return Err(ApiError::not_found(format!("job {id}")));
+    }
+    let items = state
+        .store()
+        .list_artifacts(id)
+        .await?
+        .into_iter()
+        .map(|a| ArtifactView {
+            href: format!("/v1/jobs/{id}/artifacts/{}", a.name),
+            artifact: a,
+        })
+        .collect();
+    Ok(axum::Json(ArtifactList { items }))
+}
+
+/// Download an artifact (plots are SVG).
+#[utoipa::path(
+    get, path = "/v1/jobs/{id}/artifacts/{name}", tag = "jobs",
+    params(("id" = Uuid, Path, description = "Job id"), ("name" = String, Path, description = "Artifact name")),
+    responses(
+        (status = 200, description = "The artifact, with its media type", content_type = "application/octet-stream", body = Vec<u8>),
+        (status = 404, description = "No such job or artifact", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn get_artifact(
+    State(state): State<AppState>,
+    ApiPath((id, name)): ApiPath<(Uuid, String)>,
+) -> ApiResult<Response> {
+    let a = state
+        .store()
+        .get_artifact(id, &name)
+        .await?
+        .ok_or_else(|| ApiError::not_found(format!("artifact {name:?} of job {id}")))?;
+    let data = state
+        .blobs()
+        .get(&a.sha256)
+        .await
+        .map_err(ApiError::internal)?;
+    let mut resp = data.into_response();
+    if let Ok(v) = HeaderValue::from_str(&a.media_type) {
+        resp.headers_mut().insert(header::CONTENT_TYPE, v);
+    }
+    if let Ok(v) = HeaderValue::from_str(&format!("\"{}\"", a.sha256)) {
+        resp.headers_mut().insert(header::ETAG, v);
+    }
+    Ok(resp)
+}
+
+/// The job kinds this server runs, with their parameter schemas.
+#[utoipa::path(
+    get, path = "/v1/job-kinds", tag = "jobs",
+    responses((status = 200, description = "Job kinds", body = Vec<JobKindView>))
+)]
+pub async fn list_job_kinds() -> axum::Json<Vec<JobKindView>> {
+    axum::Json(
+        kinds()
+            .iter()
+            .map(|k| JobKindView {
+                name: k.name().into(),
+                schema: k.schema().into(),
+                dataset_kind: k.dataset_kind(),
+                description: k.description().into(),
+                params_schema: k.params_schema(),
+            })
+            .collect(),
+    )
+}

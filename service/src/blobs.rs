@@ -1,0 +1,133 @@
+//! Content-addressed blob storage over `object_store`.
+//!
+//! Keys are the SHA-256 of the content, so identical uploads are stored once and writes are
+//! idempotent (a retried job that re-uploads an artifact writes the same key). The embedded
+//! profile uses the local filesystem under the data directory; S3-compatible stores plug in
+//! through the same [`ObjectStore`] trait.
+
+use std::path::Path as FsPath;
+use std::sync::Arc;
+
+use bytes::Bytes;
+use object_store::local::LocalFileSystem;
+use object_store::path::Path;
+use object_store::{ObjectStore, ObjectStoreExt, WriteMultipart};
+use tokio::io::AsyncReadExt;
+
+/// Blob store failure.
+#[derive(Debug, thiserror::Error)]
+pub enum BlobError {
+    #[error("blob {0} not found")]
+    NotFound(String),
+    #[error("blob store: {0}")]
+    Store(#[from] object_store::Error),
+    #[error("blob i/o: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// Blobs keyed by their hex SHA-256.
+#[derive(Clone, Debug)]
+pub struct Blobs {
+    store: Arc<dyn ObjectStore>,
+}
+
+fn key(sha256: &str) -> Path {
+    let a = sha256.get(0..2).unwrap_or("xx");
+    let b = sha256.get(2..4).unwrap_or("xx");
+    Path::from(format!("sha256/{a}/{b}/{sha256}"))
+}
+
+impl Blobs {
+    /// Blobs in a local directory (created if missing).
+    pub fn local(dir: &FsPath) -> Result<Self, BlobError> {
+        std::fs::create_dir_all(dir)?;
+        Ok(Self {
+            store: Arc::new(LocalFileSystem::new_with_prefix(dir)?),
+        })
+    }
+
+    /// Blobs in any object store (S3, in-memory for tests).
+    pub fn new(store: Arc<dyn ObjectStore>) -> Self {
+        Self { store }
+    }
+
+    /// Whether a blob exists.
+    pub async fn exists(&self, sha256: &str) -> Result<bool, BlobError> {
+        match self.store.head(&key(sha256)).await {
+            Ok(_) => Ok(true),
+            Err(object_store::Error::NotFound { .. }) => Ok(false),
+            Err(e) => Err(e.into()),
+        }
+    }
+
+    /// Store a local file under its (already computed) hash, streaming in chunks so memory
+    /// stays bounded whatever the file size. A blob that exists is not written again.
+    pub async fn put_file(&self, sha256: &str, file: &FsPath) -> Result<(), BlobError> {
+        if self.exists(sha256).await? {
+            return Ok(());
+        }
+        let upload = self.store.put_multipart(&key(sha256)).await?;
+        let mut writer = WriteMultipart::new_with_chunk_size(upload, 8 << 20);
+        let mut f = tokio::fs::File::open(file).await?;
+        let mut buf = vec![0u8; 1 << 20];
+        loop {
+            let n = f.read(&mut buf).await?;
+            if n == 0 {
+                break;
+            }
+            writer.wait_for_capacity(2).await?;
+            writer.write(&buf[..n]);
+        }
+        writer.finish().await?;
+        Ok(())
+    }
+
+    /// Store bytes (small artifacts) under their hash; returns the hash.
+    pub async fn put_bytes(&self, data: Bytes) -> Result<String, BlobError> {
+        let sha = crate::document::sha256_hex(&data);
+        if !self.exists(&sha).await? {
+            self.store.put(&key(&sha), data.into()).await?;
+        }
+        Ok(sha)
+    }
+
+    /// Read a whole blob.
+    pub async fn get(&self, sha256: &str) -> Result<Bytes, BlobError> {
+        match self.store.get(&key(sha256)).await {
+            Ok(r) => Ok(r.bytes().await?),
+            Err(object_store::Error::NotFound { .. }) => Err(BlobError::NotFound(sha256.into())),
+            Err(e) => Err(e.into()),
+        }
+    }
+
+    /// Delete a blob; a missing blob is not an error.
+    pub async fn delete(&self, sha256: &str) -> Result<(), BlobError> {
+        match self.store.delete(&key(sha256)).await {
+            Ok(()) | Err(object_store::Error::NotFound { .. }) => Ok(()),
+            Err(e) => Err(e.into()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn put_get_dedupe_delete() {
+        let dir = tempfile::tempdir().unwrap();
+        let blobs = Blobs::local(&dir.path().join("blobs")).unwrap();
+        let sha = blobs.put_bytes(Bytes::from_static(b"hello")).await.unwrap();
+        assert_eq!(
+            sha,
+            "2cf24dba5fb0a30e26e83b2ac5b9e29e1b161e5c1fa7425e73043362938b9824"
+        );
+        assert_eq!(&blobs.get(&sha).await.unwrap()[..], b"hello");
+        let f = dir.path().join("f");
+        std::fs::write(&f, b"hello").unwrap();
+        blobs.put_file(&sha, &f).await.unwrap();
+        blobs.delete(&sha).await.unwrap();
+        assert!(matches!(blobs.get(&sha).await, Err(BlobError::NotFound(_))));
+        blobs.delete(&sha).await.unwrap();
+    }
+}

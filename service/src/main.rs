@@ -1,0 +1,128 @@
+//! The `caliper` binary: `serve`, `openapi`, and `run <kind>` for offline jobs.
+
+use std::process::ExitCode;
+use std::time::Duration;
+
+use caliper_service::config::ConfigArgs;
+use caliper_service::offline::{self, RunCommand};
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "caliper",
+    version,
+    about = "Caliper: calibration service and offline runner"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run the HTTP service (embedded profile: SQLite + local blobs in the data directory).
+    Serve {
+        #[command(flatten)]
+        config: ConfigArgs,
+        /// Seconds running jobs get to finish on shutdown before they are re-queued.
+        #[arg(long, env = "CALIPER_SHUTDOWN_GRACE_SECS", default_value_t = 20)]
+        shutdown_grace_secs: u64,
+    },
+    /// Print the OpenAPI document.
+    Openapi,
+    /// Run a job kind on local files and print its document.
+    Run {
+        #[command(subcommand)]
+        kind: RunCommand,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Openapi => {
+            print!("{}", caliper_service::openapi_json());
+            ExitCode::SUCCESS
+        }
+        Command::Run { kind } => match offline::run(kind) {
+            Ok(doc) => {
+                println!("{doc}");
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("caliper: {e}");
+                ExitCode::from(2)
+            }
+        },
+        Command::Serve {
+            config,
+            shutdown_grace_secs,
+        } => serve(config, Duration::from_secs(shutdown_grace_secs)),
+    }
+}
+
+fn serve(args: ConfigArgs, grace: Duration) -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| "info,sqlx=warn,tower_http=info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let config = match args.resolve() {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("caliper: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let rt = match tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("caliper: cannot start runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    rt.block_on(async move {
+        let server = match caliper_service::server::start(config).await {
+            Ok(s) => s,
+            Err(e) => {
+                eprintln!("caliper: {e}");
+                return ExitCode::FAILURE;
+            }
+        };
+        // Tests and scripts read this line to learn the port when listening on :0.
+        println!("caliper listening on http://{}", server.addr);
+        tracing::info!(addr = %server.addr, "listening");
+        wait_for_signal().await;
+        tracing::info!("shutting down");
+        server.shutdown(grace).await;
+        ExitCode::SUCCESS
+    })
+}
+
+async fn wait_for_signal() {
+    let ctrl_c = tokio::signal::ctrl_c();
+    #[cfg(unix)]
+    {
+        let mut term =
+            match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+                Ok(s) => s,
+                Err(_) => {
+                    let _ = ctrl_c.await;
+                    return;
+                }
+            };
+        tokio::select! {
+            _ = ctrl_c => {}
+            _ = term.recv() => {}
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = ctrl_c.await;
+    }
+}

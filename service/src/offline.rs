@@ -1,0 +1,201 @@
+//! `caliper run <kind>`: run a job kind on local files, without a server, and print the
+//! document the service would store (same core code, same validation, same document builder).
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use clap::{Args, Subcommand};
+use serde_json::{Value, json};
+
+use crate::jobs::{JobInput, JobKind, document, find_kind};
+use crate::store::DatasetFile;
+
+/// Job kinds runnable offline.
+#[derive(Debug, Subcommand)]
+pub enum RunCommand {
+    /// Score images for blur (Laplacian variance, singular-value feature) and rank them.
+    BlurScore(BlurScoreArgs),
+}
+
+/// Flags of `caliper run blur-score`.
+#[derive(Debug, Args)]
+pub struct BlurScoreArgs {
+    /// Singular values in the numerator of β [default: 10].
+    #[arg(long)]
+    pub k: Option<usize>,
+    /// Blurred if the Laplacian variance is below this [default: 100].
+    #[arg(long)]
+    pub laplacian_threshold: Option<f64>,
+    /// Blurred if β is above this [default: 0.6].
+    #[arg(long)]
+    pub beta_threshold: Option<f64>,
+    /// How the two verdicts combine: either, both, laplacian, beta [default: either].
+    #[arg(long)]
+    pub rule: Option<String>,
+    #[command(flatten)]
+    pub common: CommonArgs,
+}
+
+/// Flags shared by every offline kind.
+#[derive(Debug, Args)]
+pub struct CommonArgs {
+    /// Write artifacts (plots) into this directory.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Pretty-print the document (default: canonical JSON, byte-identical to the service's).
+    #[arg(long)]
+    pub pretty: bool,
+    /// Input files (directories are expanded to their files, sorted by name).
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+}
+
+/// An offline run failure, printed to stderr.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error("{0}")]
+    Input(String),
+    #[error("{0}")]
+    Job(String),
+    #[error("i/o: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+fn expand(inputs: &[PathBuf]) -> Result<Vec<PathBuf>, RunError> {
+    let mut out = Vec::new();
+    for p in inputs {
+        if p.is_dir() {
+            let mut entries: Vec<PathBuf> = std::fs::read_dir(p)?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.is_file())
+                .collect();
+            entries.sort();
+            out.extend(entries);
+        } else if p.is_file() {
+            out.push(p.clone());
+        } else {
+            return Err(RunError::Input(format!("{} does not exist", p.display())));
+        }
+    }
+    if out.is_empty() {
+        return Err(RunError::Input("no input files".into()));
+    }
+    Ok(out)
+}
+
+/// Describe local image files as a dataset would (hash, size, validated header).
+fn image_files(paths: &[PathBuf]) -> Result<Vec<(DatasetFile, PathBuf)>, RunError> {
+    let limits = crate::config::Config::default().image_limits();
+    let mut files = Vec::new();
+    let mut names = std::collections::HashSet::new();
+    for p in paths {
+        let bytes = std::fs::read(p)?;
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| p.display().to_string());
+        if !names.insert(name.clone()) {
+            return Err(RunError::Input(format!("two inputs are named {name:?}")));
+        }
+        let info = caliper_core::io::probe_image(std::io::Cursor::new(&bytes), &limits)
+            .map_err(|e| RunError::Input(format!("{}: {e}", p.display())))?;
+        files.push((
+            DatasetFile {
+                name,
+                sha256: crate::document::sha256_hex(&bytes),
+                size: bytes.len() as u64,
+                media_type: format!("image/{}", info.format),
+                image: Some(info),
+            },
+            p.clone(),
+        ));
+    }
+    Ok(files)
+}
+
+/// Run a command; returns the document text to print.
+pub fn run(cmd: RunCommand) -> Result<String, RunError> {
+    match cmd {
+        RunCommand::BlurScore(a) => {
+            let mut params = serde_json::Map::new();
+            if let Some(k) = a.k {
+                params.insert("k".into(), json!(k));
+            }
+            if let Some(t) = a.laplacian_threshold {
+                params.insert("laplacian_threshold".into(), json!(t));
+            }
+            if let Some(t) = a.beta_threshold {
+                params.insert("beta_threshold".into(), json!(t));
+            }
+            if let Some(r) = &a.rule {
+                params.insert("rule".into(), json!(r));
+            }
+            run_kind("blur_score", Value::Object(params), &a.common)
+        }
+    }
+}
+
+fn run_kind(kind_name: &str, params: Value, common: &CommonArgs) -> Result<String, RunError> {
+    let kind: &dyn JobKind =
+        find_kind(kind_name).ok_or_else(|| RunError::Job(format!("unknown kind {kind_name}")))?;
+    let params = kind.normalize_params(&params).map_err(|e| {
+        RunError::Input(format!(
+            "{}: {}",
+            e.field.unwrap_or_default(),
+            e.detail.unwrap_or_default()
+        ))
+    })?;
+    let paths = expand(&common.inputs)?;
+    let described = image_files(&paths)?;
+    let by_sha: std::collections::HashMap<String, PathBuf> = described
+        .iter()
+        .map(|(f, p)| (f.sha256.clone(), p.clone()))
+        .collect();
+    let files: Vec<DatasetFile> = described.into_iter().map(|(f, _)| f).collect();
+    let input = JobInput {
+        files: files.clone(),
+        params: params.clone(),
+        load: Arc::new(move |f| {
+            let p = by_sha
+                .get(&f.sha256)
+                .ok_or_else(|| std::io::Error::other("unknown file"))?;
+            std::fs::read(p)
+        }),
+    };
+    let output = kind
+        .run(&input, &caliper_core::NoProgress)
+        .map_err(|e| RunError::Job(e.to_string()))?;
+    if let Some(dir) = &common.out {
+        write_artifacts(dir, &output.artifacts)?;
+    }
+    let manifest = document::manifest_sha256(&files);
+    let doc = document::build(
+        kind,
+        &output,
+        &document::Provenance {
+            job: None,
+            dataset: None,
+            dataset_sha256: Some(&manifest),
+            files: &files,
+            params: &params,
+            device: None,
+            sensor: None,
+        },
+        crate::clock::now_ms(),
+    );
+    let (body, _) = crate::document::seal(doc, None);
+    if common.pretty {
+        let v: Value = serde_json::from_str(&body).map_err(|e| RunError::Job(e.to_string()))?;
+        Ok(serde_json::to_string_pretty(&v).unwrap_or(body))
+    } else {
+        Ok(body)
+    }
+}
+
+fn write_artifacts(dir: &Path, artifacts: &[crate::jobs::Artifact]) -> Result<(), RunError> {
+    std::fs::create_dir_all(dir)?;
+    for a in artifacts {
+        std::fs::write(dir.join(&a.name), &a.data)?;
+    }
+    Ok(())
+}

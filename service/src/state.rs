@@ -1,0 +1,121 @@
+//! Shared application state: configuration, store, blobs, the job event bus and the
+//! in-process cancel flags of running jobs.
+
+use std::collections::HashMap;
+use std::sync::atomic::AtomicBool;
+use std::sync::{Arc, Mutex};
+
+use metrics_exporter_prometheus::PrometheusHandle;
+use serde::Serialize;
+use tokio::sync::{Notify, broadcast};
+use uuid::Uuid;
+
+use crate::blobs::Blobs;
+use crate::config::Config;
+use crate::store::Store;
+
+/// A change of a job's status or progress, fanned out to SSE subscribers.
+#[derive(Debug, Clone, Serialize)]
+pub struct JobEvent {
+    pub id: Uuid,
+    /// `status` or `progress`.
+    #[serde(skip)]
+    pub event: &'static str,
+    pub status: crate::store::JobStatus,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub progress: Option<serde_json::Value>,
+}
+
+struct Inner {
+    config: Config,
+    store: Arc<dyn Store>,
+    blobs: Blobs,
+    events: broadcast::Sender<JobEvent>,
+    wake: Notify,
+    metrics: Option<PrometheusHandle>,
+    cancel_flags: Mutex<HashMap<Uuid, Arc<AtomicBool>>>,
+}
+
+/// Cheap-to-clone handle on everything a handler or worker needs.
+#[derive(Clone)]
+pub struct AppState {
+    inner: Arc<Inner>,
+}
+
+impl AppState {
+    pub fn new(
+        config: Config,
+        store: Arc<dyn Store>,
+        blobs: Blobs,
+        metrics: Option<PrometheusHandle>,
+    ) -> Self {
+        let (events, _) = broadcast::channel(1024);
+        Self {
+            inner: Arc::new(Inner {
+                config,
+                store,
+                blobs,
+                events,
+                wake: Notify::new(),
+                metrics,
+                cancel_flags: Mutex::new(HashMap::new()),
+            }),
+        }
+    }
+
+    pub fn config(&self) -> &Config {
+        &self.inner.config
+    }
+
+    pub fn store(&self) -> &dyn Store {
+        self.inner.store.as_ref()
+    }
+
+    pub fn blobs(&self) -> &Blobs {
+        &self.inner.blobs
+    }
+
+    pub fn metrics(&self) -> Option<&PrometheusHandle> {
+        self.inner.metrics.as_ref()
+    }
+
+    /// Publish a job event (no-op without subscribers).
+    pub fn publish(&self, ev: JobEvent) {
+        let _ = self.inner.events.send(ev);
+    }
+
+    pub fn subscribe(&self) -> broadcast::Receiver<JobEvent> {
+        self.inner.events.subscribe()
+    }
+
+    /// Wake an idle worker (a job was queued).
+    pub fn wake_workers(&self) {
+        self.inner.wake.notify_one();
+    }
+
+    pub fn wake(&self) -> &Notify {
+        &self.inner.wake
+    }
+
+    /// Register the cancel flag of a job running in this process.
+    pub fn register_cancel(&self, id: Uuid, flag: Arc<AtomicBool>) {
+        if let Ok(mut m) = self.inner.cancel_flags.lock() {
+            m.insert(id, flag);
+        }
+    }
+
+    pub fn unregister_cancel(&self, id: Uuid) {
+        if let Ok(mut m) = self.inner.cancel_flags.lock() {
+            m.remove(&id);
+        }
+    }
+
+    /// Raise the cancel flag of a job if it runs in this process (others notice at heartbeat).
+    pub fn signal_cancel(&self, id: Uuid) {
+        if let Ok(m) = self.inner.cancel_flags.lock()
+            && let Some(f) = m.get(&id)
+        {
+            f.store(true, std::sync::atomic::Ordering::SeqCst);
+        }
+    }
+}

@@ -1,0 +1,369 @@
+//! Persistence behind one trait, so that the embedded SQLite profile and a scale-out
+//! PostgreSQL profile share handlers and workers.
+//!
+//! The SQL in [`sqlite`] avoids SQLite-only semantics in the queue: timestamps are integer
+//! milliseconds computed by the caller, a claim is one `UPDATE … WHERE id = (SELECT … LIMIT 1)
+//! RETURNING`, and every write by a worker is fenced by `(lease_owner, attempt)`, which is what
+//! a PostgreSQL implementation (`FOR UPDATE SKIP LOCKED`) needs too.
+
+pub mod sqlite;
+
+use async_trait::async_trait;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use utoipa::ToSchema;
+use uuid::Uuid;
+
+pub use sqlite::SqliteStore;
+
+/// Storage failure.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("{0} not found")]
+    NotFound(String),
+    #[error("database error: {0}")]
+    Db(#[from] sqlx::Error),
+    #[error("stored data is inconsistent: {0}")]
+    Corrupt(String),
+}
+
+pub type StoreResult<T> = Result<T, StoreError>;
+
+/// What a dataset holds, decided from the uploaded files' content.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum DatasetKind {
+    /// One or more still images (PNG, JPEG, TIFF), possibly unpacked from zip archives.
+    Images,
+    /// One IMU log (CSV, optionally gzip-compressed).
+    ImuLog,
+    /// One video clip (kept as a blob).
+    Video,
+}
+
+impl DatasetKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Images => "images",
+            Self::ImuLog => "imu_log",
+            Self::Video => "video",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "images" => Some(Self::Images),
+            "imu_log" => Some(Self::ImuLog),
+            "video" => Some(Self::Video),
+            _ => None,
+        }
+    }
+}
+
+/// One stored file of a dataset.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct DatasetFile {
+    /// File name as uploaded (for archive entries: the path inside the archive).
+    pub name: String,
+    /// SHA-256 of the content, hex; also the blob key.
+    pub sha256: String,
+    /// Size in bytes.
+    pub size: u64,
+    /// Detected media type (from content, not from the name).
+    pub media_type: String,
+    /// Image header facts, for images.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub image: Option<caliper_core::io::ImageInfo>,
+}
+
+/// A dataset row.
+#[derive(Debug, Clone)]
+pub struct DatasetRecord {
+    pub id: Uuid,
+    pub kind: DatasetKind,
+    pub created_at: i64,
+    pub total_bytes: u64,
+    /// SHA-256 over the sorted `name:sha256` lines: identifies the content of the set.
+    pub sha256: String,
+    pub files: Vec<DatasetFile>,
+}
+
+/// Job lifecycle states.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum JobStatus {
+    Queued,
+    Running,
+    Succeeded,
+    Failed,
+    Canceled,
+}
+
+impl JobStatus {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Queued => "queued",
+            Self::Running => "running",
+            Self::Succeeded => "succeeded",
+            Self::Failed => "failed",
+            Self::Canceled => "canceled",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "queued" => Some(Self::Queued),
+            "running" => Some(Self::Running),
+            "succeeded" => Some(Self::Succeeded),
+            "failed" => Some(Self::Failed),
+            "canceled" => Some(Self::Canceled),
+            _ => None,
+        }
+    }
+
+    pub fn is_terminal(self) -> bool {
+        matches!(self, Self::Succeeded | Self::Failed | Self::Canceled)
+    }
+}
+
+/// A job row.
+#[derive(Debug, Clone)]
+pub struct JobRecord {
+    pub id: Uuid,
+    pub kind: String,
+    pub dataset_id: Uuid,
+    pub device: Option<String>,
+    pub sensor: Option<String>,
+    pub params: Value,
+    pub status: JobStatus,
+    pub attempt: u32,
+    pub max_attempts: u32,
+    pub run_at: i64,
+    pub lease_owner: Option<Uuid>,
+    pub lease_expires_at: Option<i64>,
+    pub cancel_requested: bool,
+    pub progress: Option<Value>,
+    pub error: Option<Value>,
+    pub result: Option<Value>,
+    pub document_rev: Option<u64>,
+    pub idempotency_key: Option<String>,
+    pub request_hash: Option<String>,
+    pub created_at: i64,
+    pub started_at: Option<i64>,
+    pub finished_at: Option<i64>,
+}
+
+/// A job to insert.
+#[derive(Debug, Clone)]
+pub struct NewJob {
+    pub id: Uuid,
+    pub kind: String,
+    pub dataset_id: Uuid,
+    pub device: Option<String>,
+    pub sensor: Option<String>,
+    pub params: Value,
+    pub max_attempts: u32,
+    pub idempotency_key: Option<String>,
+    pub request_hash: Option<String>,
+    pub now: i64,
+}
+
+/// Outcome of inserting a job.
+#[derive(Debug)]
+pub enum CreateJob {
+    Created(JobRecord),
+    /// Same idempotency key and same request: the earlier job.
+    Existing(JobRecord),
+    /// Same idempotency key, different request.
+    Conflict(JobRecord),
+    /// The queue holds `max_queued` jobs already.
+    QueueFull,
+    /// The dataset does not exist (or was deleted).
+    UnknownDataset,
+}
+
+/// Filters of the job list.
+#[derive(Debug, Clone, Default)]
+pub struct JobFilter {
+    pub statuses: Vec<JobStatus>,
+    pub kinds: Vec<String>,
+    pub device: Option<String>,
+    pub dataset: Option<Uuid>,
+    pub created_after: Option<i64>,
+    pub created_before: Option<i64>,
+    /// Keyset cursor: only jobs with a smaller id (ids are time-ordered UUIDv7).
+    pub before_id: Option<Uuid>,
+    pub limit: u32,
+}
+
+/// Outcome of a cancel request.
+#[derive(Debug)]
+pub enum CancelJob {
+    /// A queued job, now canceled.
+    Canceled(JobRecord),
+    /// A running job, flagged; the worker stops at its next check.
+    Requested(JobRecord),
+    /// Already finished: nothing to cancel.
+    Finished(JobRecord),
+    NotFound,
+}
+
+/// Outcome of deleting a dataset.
+#[derive(Debug)]
+pub enum DeleteDataset {
+    /// Deleted; these blob keys are no longer referenced by any dataset.
+    Deleted {
+        orphan_blobs: Vec<String>,
+    },
+    /// A queued or running job uses it.
+    InUse(Vec<Uuid>),
+    NotFound,
+}
+
+/// Where a succeeded job's document is filed; the store assigns the next `rev` in the same
+/// transaction that completes the job and seals the body with it (see [`crate::document`]).
+#[derive(Debug, Clone)]
+pub struct NewDocument {
+    pub device: String,
+    pub sensor: String,
+    pub kind: String,
+    pub schema: String,
+}
+
+/// A stored document revision.
+#[derive(Debug, Clone)]
+pub struct DocumentRecord {
+    pub device: String,
+    pub sensor: String,
+    pub kind: String,
+    pub rev: u64,
+    pub etag: String,
+    pub schema: String,
+    pub created_at: i64,
+    pub job_id: Option<Uuid>,
+    /// The full document, canonical JSON.
+    pub body: String,
+}
+
+/// Summary of a device's documents (latest revision per sensor and kind).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct DocumentSummary {
+    pub sensor: String,
+    pub kind: String,
+    pub schema: String,
+    pub latest_rev: u64,
+    pub etag: String,
+    /// RFC 3339.
+    pub created_at: String,
+}
+
+/// An artifact produced by a job (plot, image), stored as a content-addressed blob.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct ArtifactRecord {
+    pub name: String,
+    pub media_type: String,
+    pub sha256: String,
+    pub size: u64,
+}
+
+/// Outcome of a heartbeat.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Heartbeat {
+    /// Lease renewed; `cancel` tells whether cancellation was requested.
+    Renewed { cancel: bool },
+    /// The lease is no longer ours (expired and re-claimed, or job finished): stop at once.
+    Lost,
+}
+
+/// How a job attempt ended, as recorded by [`Store::finish_job`].
+#[derive(Debug, Clone)]
+pub enum Finish {
+    Succeeded {
+        /// The unsealed document (no `rev`, no `etag`).
+        result: Value,
+        document: Option<NewDocument>,
+        artifacts: Vec<ArtifactRecord>,
+    },
+    /// Failed for good.
+    Failed {
+        error: Value,
+    },
+    /// Transient failure: queue again at `run_at` (unless attempts are exhausted).
+    Retry {
+        error: Value,
+        run_at: i64,
+    },
+    Canceled,
+}
+
+/// The storage interface used by handlers and workers.
+#[async_trait]
+pub trait Store: Send + Sync + 'static {
+    /// Can we reach the database?
+    async fn ping(&self) -> StoreResult<()>;
+
+    async fn insert_dataset(&self, ds: &DatasetRecord) -> StoreResult<()>;
+    async fn get_dataset(&self, id: Uuid) -> StoreResult<Option<DatasetRecord>>;
+    async fn list_datasets(
+        &self,
+        before_id: Option<Uuid>,
+        limit: u32,
+    ) -> StoreResult<Vec<DatasetRecord>>;
+    async fn delete_dataset(&self, id: Uuid) -> StoreResult<DeleteDataset>;
+
+    async fn create_job(&self, job: NewJob, max_queued: u64) -> StoreResult<CreateJob>;
+    async fn get_job(&self, id: Uuid) -> StoreResult<Option<JobRecord>>;
+    async fn list_jobs(&self, filter: &JobFilter) -> StoreResult<Vec<JobRecord>>;
+    async fn cancel_job(&self, id: Uuid, now: i64) -> StoreResult<CancelJob>;
+    async fn queue_depth(&self) -> StoreResult<(u64, u64)>;
+
+    /// Claim the next runnable job for `owner` until `lease_until`.
+    async fn claim_job(
+        &self,
+        owner: Uuid,
+        now: i64,
+        lease_until: i64,
+    ) -> StoreResult<Option<JobRecord>>;
+    /// Renew a lease and store progress; fenced by owner and attempt.
+    async fn heartbeat(
+        &self,
+        id: Uuid,
+        owner: Uuid,
+        attempt: u32,
+        lease_until: i64,
+        progress: Option<&Value>,
+    ) -> StoreResult<Heartbeat>;
+    /// Record the end of an attempt; fenced. Returns false if the lease was lost (nothing written).
+    async fn finish_job(
+        &self,
+        id: Uuid,
+        owner: Uuid,
+        attempt: u32,
+        now: i64,
+        finish: Finish,
+    ) -> StoreResult<bool>;
+    /// Re-queue running jobs whose lease expired (or all running jobs when `all`, used at start-up
+    /// by the exclusive embedded profile). Jobs out of attempts fail. Returns how many changed.
+    async fn recover_leases(&self, now: i64, all: bool) -> StoreResult<u64>;
+    /// Delete finished jobs that ended before `before`; returns artifact blob keys now unreferenced.
+    async fn prune_jobs(&self, before: i64) -> StoreResult<Vec<String>>;
+
+    async fn list_artifacts(&self, job: Uuid) -> StoreResult<Vec<ArtifactRecord>>;
+    async fn get_artifact(&self, job: Uuid, name: &str) -> StoreResult<Option<ArtifactRecord>>;
+
+    async fn list_documents(&self, device: &str) -> StoreResult<Vec<DocumentSummary>>;
+    async fn get_document(
+        &self,
+        device: &str,
+        sensor: &str,
+        kind: &str,
+        rev: Option<u64>,
+    ) -> StoreResult<Option<DocumentRecord>>;
+    async fn list_revisions(
+        &self,
+        device: &str,
+        sensor: &str,
+        kind: &str,
+    ) -> StoreResult<Vec<DocumentRecord>>;
+}
