@@ -3,10 +3,12 @@
 //! callers (the worker pool, the CLI) can show progress and cancel cooperatively.
 
 pub mod blur;
+pub mod calib;
 pub mod camera;
 pub mod error;
 pub mod io;
 pub mod lie;
+pub mod optim;
 pub mod progress;
 
 pub use error::{CoreError, CoreResult};

@@ -178,32 +178,3 @@ pub fn svd_beta(img: &Gray, k: usize) -> CoreResult<f64> {
     let (sigma, _) = singular_values(img, Par::Seq)?;
     Ok(beta_from_sorted(&sigma, k))
 }
-
-/// Timing probe used by an ignored test: (gram ms, evd ms, direct svd ms).
-#[cfg(test)]
-pub(crate) fn probe_parts(img: &Gray, par: Par) -> ([f64; 3], f64) {
-    use std::time::Instant;
-    let b = short_side_matrix(img);
-    let m = b.ncols();
-    let t = Instant::now();
-    let mut g = Mat::<f64>::zeros(m, m);
-    tri::matmul(
-        g.as_mut(),
-        BlockStructure::TriangularLower,
-        Accum::Replace,
-        b.transpose(),
-        BlockStructure::Rectangular,
-        b.as_ref(),
-        BlockStructure::Rectangular,
-        1.0,
-        par,
-    );
-    let t_gram = t.elapsed().as_secs_f64() * 1e3;
-    let t = Instant::now();
-    let e = gram_eigenvalues(b.as_ref(), par).unwrap();
-    let t_both = t.elapsed().as_secs_f64() * 1e3;
-    let t = Instant::now();
-    let s = direct_singular_values(b.as_ref(), par).unwrap();
-    let t_svd = t.elapsed().as_secs_f64() * 1e3;
-    ([t_gram, t_both - t_gram, t_svd], e[0] + s[0])
-}

@@ -390,26 +390,3 @@ fn params_validate_and_deserialize() {
     assert_eq!((p.k, p.rule, p.beta_threshold), (5, BlurRule::Both, 0.6));
     assert!(serde_json::from_str::<BlurParams>(r#"{"kk": 5}"#).is_err());
 }
-
-/// Timing probe for the SVD route choices (run with --release --ignored).
-#[test]
-#[ignore]
-fn timing_probe_svd_parts() {
-    use std::time::Instant;
-    let mut rng = Rng(3);
-    let img = {
-        let sharp = sharp_scene(640, 480);
-        let mut g = box_blur(&sharp, 5);
-        for v in g.data.iter_mut() {
-            *v = v.wrapping_add((rng.next() >> 61) as u8);
-        }
-        g
-    };
-    for par in [Par::Seq, Par::rayon(2)] {
-        for _ in 0..3 {
-            let t = Instant::now();
-            let (times, _) = super::svd::probe_parts(&img, par);
-            println!("{par:?}: total {:?} parts {times:?}", t.elapsed());
-        }
-    }
-}

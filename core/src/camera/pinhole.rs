@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{
     CameraModel, ProjectionJacobians, UNPROJECT_MAX_ITERATIONS, UNPROJECT_TOLERANCE,
-    checked_params, first_nonpositive, schema_via_params,
+    checked_params, first_nonpositive, schema_via_params, solve_increasing,
 };
 use crate::error::{CoreError, CoreResult};
 
@@ -225,24 +225,52 @@ impl CameraModel for PinholeRadTan {
         Some(Vector2::new(fx * d.x + cx, fy * d.y + cy))
     }
 
-    /// Inverts the distortion by Newton's method on the 2×2 system `distort(x) = x″`, starting
-    /// from `x″`, with step halving whenever a full step does not reduce the residual. Converged
-    /// when the residual is below [`UNPROJECT_TOLERANCE`]; the solution must also lie inside the
-    /// monotonic domain so that it is the ray [`CameraModel::project`] would map to this pixel.
+    /// Inverts the distortion in two stages. First the radial part alone, `r·D(r) = |x″|`, is
+    /// solved on the monotonic interval `[0, r_max)` by safeguarded Newton, which cannot jump to
+    /// the folded-back branch the way a plain Newton start from `x″` does for strong
+    /// distortion. Then Newton's method on the full 2×2 system `distort(x) = x″` (tangential terms
+    /// included) polishes that guess, halving steps that would not reduce the residual or would
+    /// leave the domain. Converged when the residual is below [`UNPROJECT_TOLERANCE`] within
+    /// [`UNPROJECT_MAX_ITERATIONS`] steps; `None` otherwise.
     fn unproject(&self, px: &Vector2<f64>) -> Option<Vector3<f64>> {
-        let [fx, fy, cx, cy, ..] = self.params;
+        let [fx, fy, cx, cy, k1, k2, _, _, k3] = self.params;
         let target = Vector2::new((px.x - cx) / fx, (px.y - cy) / fy);
-        if !target.iter().all(|v| v.is_finite()) {
+        let rd = target.norm();
+        if !rd.is_finite() {
             return None;
         }
-        let mut x = target;
+        let mut x = if rd > UNPROJECT_TOLERANCE {
+            let radial = |r: f64| {
+                let r2 = r * r;
+                r * (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3)))
+            };
+            let dradial = |r: f64| {
+                let r2 = r * r;
+                1.0 + r2 * (3.0 * k1 + r2 * (5.0 * k2 + r2 * 7.0 * k3))
+            };
+            let r_hi = if self.max_r2.is_finite() {
+                self.max_r2.sqrt()
+            } else {
+                let mut hi = rd.max(1.0);
+                while radial(hi) < rd {
+                    hi *= 2.0;
+                    if hi > 1e8 {
+                        return None;
+                    }
+                }
+                hi
+            };
+            // Past the radial fold the tangential terms may still bring the solution inside;
+            // start just inside the domain and let the 2-D iteration decide.
+            let r = solve_increasing(radial, dradial, rd, 0.0, r_hi, rd).unwrap_or(0.999 * r_hi);
+            target * (r / rd)
+        } else {
+            target
+        };
         let mut cur = self.distort(x.x, x.y);
         let mut res = cur.d - target;
         for _ in 0..UNPROJECT_MAX_ITERATIONS {
             if res.norm() <= UNPROJECT_TOLERANCE {
-                if x.norm_squared() >= self.max_r2 {
-                    return None;
-                }
                 return Some(Vector3::new(x.x, x.y, 1.0).normalize());
             }
             let step = cur.jac.try_inverse()? * res;
@@ -251,16 +279,16 @@ impl CameraModel for PinholeRadTan {
                 let cand = x - step * scale;
                 let next = self.distort(cand.x, cand.y);
                 let next_res = next.d - target;
-                if next_res.norm() < res.norm() || scale < 1e-3 {
+                if cand.norm_squared() < self.max_r2 && next_res.norm() < res.norm() {
                     x = cand;
                     cur = next;
                     res = next_res;
                     break;
                 }
                 scale *= 0.5;
-            }
-            if !x.iter().all(|v| v.is_finite()) {
-                return None;
+                if scale < 1e-6 {
+                    return None;
+                }
             }
         }
         None

@@ -147,7 +147,7 @@ fn pinhole_matches_hand_computed_values() {
         .project(&Vector3::new(0.2, -0.1, 2.0))
         .expect("in front");
     assert!((px.x - 369.8378916015625).abs() < 1e-10, "{px}");
-    assert!((px.y - 215.579433115234375).abs() < 1e-10, "{px}");
+    assert!((px.y - 215.579_433_115_234_37).abs() < 1e-10, "{px}");
     // The principal ray hits the principal point.
     let c = cam.project(&Vector3::new(0.0, 0.0, 3.0)).expect("in front");
     assert_eq!(c, Vector2::new(320.0, 240.0));
@@ -186,7 +186,6 @@ fn behind_camera_and_degenerate_points_are_none() {
     for cam in &cams {
         for p in [
             Vector3::new(0.0, 0.0, -1.0),
-            Vector3::new(0.1, -0.2, -5.0),
             Vector3::zeros(),
             Vector3::new(f64::NAN, 0.0, 1.0),
         ] {
@@ -199,8 +198,15 @@ fn behind_camera_and_degenerate_points_are_none() {
         }
         assert!(cam.unproject(&Vector2::new(f64::NAN, 1.0)).is_none());
     }
-    // The pinhole also rejects the image plane and anything at 90°.
+    // The pinhole also rejects the image plane and anything behind it.
     assert!(euroc().project(&Vector3::new(1.0, 0.0, 0.0)).is_none());
+    assert!(euroc().project(&Vector3::new(0.1, -0.2, -5.0)).is_none());
+    // Kannala-Brandt is valid wherever θd is monotonic and θ < π: the TUM VI polynomial is
+    // monotonic up to π, so only the exact backward axis is excluded; a lens whose polynomial
+    // folds earlier rejects everything beyond the fold.
+    assert!(tumvi_kb().project(&Vector3::new(0.1, -0.2, -5.0)).is_some());
+    let kb = KannalaBrandt::new(300.0, 300.0, 0.0, 0.0, -0.1, 0.0, 0.0, 0.0).expect("valid");
+    assert!(kb.project(&Vector3::new(0.1, -0.2, -5.0)).is_none());
     // The double sphere rejects rays past its cone (≈126° for TUM VI).
     assert!(
         tumvi_ds()
@@ -219,7 +225,7 @@ fn distortion_fold_limits_the_domain() {
     // 1 + 3k1 r² = 0 at r² = 1/1.2 for k1 = −0.4: the radial map folds back there.
     let cam = PinholeRadTan::new(500.0, 500.0, 0.0, 0.0, -0.4, 0.0, 0.0, 0.0, 0.0).expect("valid");
     assert!((cam.max_radius_squared() - 1.0 / 1.2).abs() < 1e-9);
-    assert!(cam.project(&Vector3::new(0.9, 0.0, 1.0)).is_none());
+    assert!(cam.project(&Vector3::new(0.95, 0.0, 1.0)).is_none());
     assert!(cam.project(&Vector3::new(0.85, 0.0, 1.0)).is_some());
     // Pixels beyond the fold's image radius have no ray.
     let r_max = (1.0f64 / 1.2).sqrt();
@@ -480,4 +486,22 @@ fn camera_documents() {
     ] {
         assert!(serde_json::from_str::<Camera>(bad).is_err(), "{bad}");
     }
+}
+
+#[cfg(feature = "schema")]
+#[test]
+fn openapi_schema_describes_the_documents() {
+    use utoipa::{PartialSchema, ToSchema};
+    let schema = serde_json::to_string(&Camera::schema()).expect("serialise schema");
+    for needle in ["pinhole_radtan", "kannala_brandt", "double_sphere", "model"] {
+        assert!(schema.contains(needle), "{needle} missing from {schema}");
+    }
+    let mut deps = Vec::new();
+    Camera::schemas(&mut deps);
+    let all = serde_json::to_string(&deps).expect("serialise schemas");
+    for needle in ["\"fx\"", "\"k3\"", "\"k4\"", "\"alpha\""] {
+        assert!(all.contains(needle), "{needle} missing from {all}");
+    }
+    let pose = serde_json::to_string(&crate::lie::Se3::schema()).expect("serialise schema");
+    assert!(pose.contains("rotation") && pose.contains("translation"));
 }

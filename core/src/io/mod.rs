@@ -78,7 +78,7 @@ impl ImageLimits {
 }
 
 fn format_pixels(p: u64) -> String {
-    if p >= 1_000_000 && p % 1_000_000 == 0 {
+    if p >= 1_000_000 && p.is_multiple_of(1_000_000) {
         format!("{} Mpx", p / 1_000_000)
     } else if p >= 1_000_000 {
         format!("{:.1} Mpx", p as f64 / 1e6)

@@ -21,6 +21,9 @@ const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
 /// Solà et al. (2018), Appendix B, in its unit-quaternion form.
 ///
 /// Serialised as the quaternion `[w, x, y, z]`.
+///
+/// `PartialEq` compares the stored quaternions, so `q` and `−q` (the same rotation) compare
+/// unequal; compare [`So3::matrix`] or use [`So3::left_minus`] for geometric equality.
 #[derive(Clone, Copy, PartialEq)]
 pub struct So3 {
     q: UnitQuaternion<f64>,

@@ -1,0 +1,1 @@
+//! Camera calibration solvers (being written).
