@@ -1,1 +1,12 @@
+//! Black-box tests of the Caliper service through real HTTP on 127.0.0.1.
+//!
+//! One test binary (link time), one module per area. Inputs are rendered in-test; nothing
+//! here needs files outside the repository.
 
+mod common;
+mod datasets;
+mod documents;
+mod errors;
+mod jobs;
+mod openapi;
+mod recovery;

@@ -1,0 +1,197 @@
+//! Crash recovery: SIGKILL the `caliper` binary mid-job, start it again on the same data
+//! directory, and the job completes exactly once.
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use serde_json::{Value, json};
+
+use crate::common::*;
+
+/// The `caliper` binary next to this test's build output, built if missing.
+fn caliper_bin() -> PathBuf {
+    if let Ok(p) = std::env::var("CALIPER_BIN") {
+        return PathBuf::from(p);
+    }
+    let exe = std::env::current_exe().expect("current exe");
+    let profile_dir = exe.parent().and_then(|d| d.parent()).expect("target dir");
+    let bin = profile_dir.join("caliper");
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut cmd = Command::new(cargo);
+    cmd.args(["build", "-p", "caliper-service", "--bin", "caliper"]);
+    if profile_dir.file_name().is_some_and(|n| n == "release") {
+        cmd.arg("--release");
+    }
+    // Always (re)build: cargo is a no-op when the binary is fresh.
+    let status = cmd.status().expect("cargo build");
+    assert!(status.success(), "building the caliper binary failed");
+    assert!(bin.exists(), "no binary at {}", bin.display());
+    bin
+}
+
+struct Proc {
+    child: Child,
+    base: String,
+}
+
+fn spawn(bin: &PathBuf, data: &std::path::Path) -> Proc {
+    let mut child = Command::new(bin)
+        .args([
+            "serve",
+            "--listen",
+            "127.0.0.1:0",
+            "--workers",
+            "1",
+            "--heartbeat-ms",
+            "100",
+            "--lease-secs",
+            "3",
+        ])
+        .arg("--data-dir")
+        .arg(data)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("spawn caliper");
+    let stdout = child.stdout.take().expect("stdout");
+    let mut line = String::new();
+    BufReader::new(stdout)
+        .read_line(&mut line)
+        .expect("read line");
+    let base = line
+        .trim()
+        .strip_prefix("caliper listening on ")
+        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
+        .to_string();
+    Proc { child, base }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn killed_server_resumes_its_job_and_completes_it_once() {
+    let bin = tokio::task::spawn_blocking(caliper_bin).await.unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let client = reqwest::Client::new();
+
+    let mut p = spawn(&bin, &data);
+    let files = slow_dataset(60);
+    let mut form = reqwest::multipart::Form::new();
+    for (n, b) in &files {
+        form = form.part(
+            "file",
+            reqwest::multipart::Part::bytes(b.clone()).file_name(n.clone()),
+        );
+    }
+    let ds: Value = client
+        .post(format!("{}/v1/datasets", p.base))
+        .multipart(form)
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let body =
+        json!({"kind": "blur_score", "dataset": ds["id"], "device": "dev-9", "sensor": "cam0"});
+    let job: Value = client
+        .post(format!("{}/v1/jobs", p.base))
+        .json(&body)
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let id = job["id"].as_str().unwrap().to_string();
+    // Wait until it is running and has made progress, then kill -9.
+    let deadline = std::time::Instant::now() + Duration::from_secs(60);
+    loop {
+        let j: Value = client
+            .get(format!("{}/v1/jobs/{id}", p.base))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        if j["status"] == "running" && j["progress"]["done"].as_u64().unwrap_or(0) >= 2 {
+            break;
+        }
+        assert!(
+            j["status"] != "succeeded",
+            "job finished before the kill; make the dataset bigger"
+        );
+        assert!(std::time::Instant::now() < deadline, "job never ran: {j}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    p.child.kill().expect("kill");
+    p.child.wait().expect("wait");
+
+    let mut p = spawn(&bin, &data);
+    let deadline = std::time::Instant::now() + Duration::from_secs(90);
+    let done = loop {
+        let j: Value = client
+            .get(format!("{}/v1/jobs/{id}", p.base))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        if matches!(
+            j["status"].as_str(),
+            Some("succeeded" | "failed" | "canceled")
+        ) {
+            break j;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "job not finished after restart: {j}"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    };
+    assert_eq!(done["status"], "succeeded", "{done}");
+    assert_eq!(
+        done["attempt"], 2,
+        "one killed attempt, one completed: {done}"
+    );
+    let revs: Value = client
+        .get(format!(
+            "{}/v1/devices/dev-9/documents/cam0/blur_score",
+            p.base
+        ))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(
+        revs.as_array().map(Vec::len),
+        Some(1),
+        "exactly one document: {revs}"
+    );
+    let doc: Value = client
+        .get(format!("{}/v1/jobs/{id}/result", p.base))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(
+        doc["parameters"]["images"].as_array().map(Vec::len),
+        Some(60)
+    );
+
+    // Graceful stop: SIGTERM ends the process cleanly.
+    let pid = p.child.id().to_string();
+    Command::new("kill").args(["-TERM", &pid]).status().unwrap();
+    let status = p.child.wait().unwrap();
+    assert!(status.success(), "graceful shutdown exits 0: {status}");
+    // And the data directory is exclusive while a server holds it.
+    let _ = &mut p;
+}
