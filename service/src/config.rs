@@ -50,6 +50,8 @@ pub struct Config {
     pub max_archive_bytes: u64,
     /// Largest ratio of uncompressed to compressed size, per entry and in total.
     pub max_compression_ratio: u64,
+    /// Finished jobs kept in memory for `GET /v1/jobs/{id}` (0 disables the cache).
+    pub job_cache_entries: usize,
 }
 
 impl Default for Config {
@@ -75,6 +77,7 @@ impl Default for Config {
             max_image_side: 20_000,
             max_archive_bytes: 4 << 30,
             max_compression_ratio: 200,
+            job_cache_entries: 10_000,
         }
     }
 }
@@ -136,6 +139,9 @@ pub struct ConfigArgs {
     /// Largest compression ratio in archives [default: 200].
     #[arg(long, env = "CALIPER_MAX_COMPRESSION_RATIO")]
     pub max_compression_ratio: Option<u64>,
+    /// Finished jobs cached in memory for reads; 0 disables [default: 10000].
+    #[arg(long, env = "CALIPER_JOB_CACHE_ENTRIES")]
+    pub job_cache_entries: Option<usize>,
 }
 
 /// The TOML file: the same keys as the flags, all optional.
@@ -161,6 +167,7 @@ struct FileConfig {
     max_image_side: Option<u32>,
     max_archive_bytes: Option<u64>,
     max_compression_ratio: Option<u64>,
+    job_cache_entries: Option<usize>,
 }
 
 /// A configuration that cannot be used.
@@ -247,6 +254,10 @@ impl ConfigArgs {
                 .max_compression_ratio
                 .or(file.max_compression_ratio)
                 .unwrap_or(d.max_compression_ratio),
+            job_cache_entries: self
+                .job_cache_entries
+                .or(file.job_cache_entries)
+                .unwrap_or(d.job_cache_entries),
         };
         cfg.validate()?;
         Ok(cfg)

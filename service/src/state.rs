@@ -3,7 +3,9 @@
 
 use std::collections::HashMap;
 use std::sync::atomic::AtomicBool;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, RwLock};
+
+use bytes::Bytes;
 
 use metrics_exporter_prometheus::PrometheusHandle;
 use serde::Serialize;
@@ -34,6 +36,7 @@ struct Inner {
     wake: Notify,
     metrics: Option<PrometheusHandle>,
     cancel_flags: Mutex<HashMap<Uuid, Arc<AtomicBool>>>,
+    finished_jobs: RwLock<HashMap<Uuid, Bytes>>,
 }
 
 /// Cheap-to-clone handle on everything a handler or worker needs.
@@ -59,6 +62,7 @@ impl AppState {
                 wake: Notify::new(),
                 metrics,
                 cancel_flags: Mutex::new(HashMap::new()),
+                finished_jobs: RwLock::new(HashMap::new()),
             }),
         }
     }
@@ -95,6 +99,34 @@ impl AppState {
 
     pub fn wake(&self) -> &Notify {
         &self.inner.wake
+    }
+
+    /// The serialized view of a finished job, if cached. Finished jobs never change (until
+    /// retention deletes them, which clears the cache), so this is safe across replicas too.
+    pub fn cached_job(&self, id: &Uuid) -> Option<Bytes> {
+        self.inner.finished_jobs.read().ok()?.get(id).cloned()
+    }
+
+    /// Cache the serialized view of a finished job; the cache is bounded by
+    /// `job_cache_entries` and simply starts over when full.
+    pub fn cache_job(&self, id: Uuid, view: Bytes) {
+        let cap = self.inner.config.job_cache_entries;
+        if cap == 0 {
+            return;
+        }
+        if let Ok(mut m) = self.inner.finished_jobs.write() {
+            if m.len() >= cap {
+                m.clear();
+            }
+            m.insert(id, view);
+        }
+    }
+
+    /// Forget cached jobs (after pruning).
+    pub fn clear_job_cache(&self) {
+        if let Ok(mut m) = self.inner.finished_jobs.write() {
+            m.clear();
+        }
     }
 
     /// Register the cancel flag of a job running in this process.

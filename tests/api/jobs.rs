@@ -317,3 +317,17 @@ async fn job_kinds_and_metrics_are_published() {
     assert_eq!((st, h["status"].as_str()), (200, Some("ok")));
     s.stop().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn storage_failures_are_retried_with_backoff_then_fail() {
+    let s = start_with(|c| c.max_attempts = 3).await;
+    let ds = s.dataset(vec![("a.png", png(&sharp_image(64, 48)))]).await;
+    // Lose the blobs behind the dataset's back: reading them fails, which is not the input's fault.
+    std::fs::remove_dir_all(s.dir.path().join("data/blobs/sha256")).unwrap();
+    let id = s.job(json!({"kind": "blur_score", "dataset": ds})).await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "failed", "{done}");
+    assert_eq!(done["attempt"], 3, "retried up to max_attempts: {done}");
+    assert_eq!(done["error"]["code"], "transient");
+    s.stop().await;
+}

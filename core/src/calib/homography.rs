@@ -22,7 +22,17 @@ fn normaliser(pts: &[Vector2<f64>]) -> CoreResult<Matrix3<f64>> {
         ));
     }
     let s = std::f64::consts::SQRT_2 / mean_dist;
-    Ok(Matrix3::new(s, 0.0, -s * c.x, 0.0, s, -s * c.y, 0.0, 0.0, 1.0))
+    Ok(Matrix3::new(
+        s,
+        0.0,
+        -s * c.x,
+        0.0,
+        s,
+        -s * c.y,
+        0.0,
+        0.0,
+        1.0,
+    ))
 }
 
 fn apply(h: &Matrix3<f64>, p: &Vector2<f64>) -> Vector2<f64> {
@@ -67,7 +77,11 @@ pub fn homography_dlt(src: &[Vector2<f64>], dst: &[Vector2<f64>]) -> CoreResult<
             src.len()
         )));
     }
-    if src.iter().chain(dst).any(|p| !(p.x.is_finite() && p.y.is_finite())) {
+    if src
+        .iter()
+        .chain(dst)
+        .any(|p| !(p.x.is_finite() && p.y.is_finite()))
+    {
         return Err(CoreError::input("homography: non-finite point"));
     }
     check_spread(src)?;
@@ -81,9 +95,19 @@ pub fn homography_dlt(src: &[Vector2<f64>], dst: &[Vector2<f64>]) -> CoreResult<
         let s = apply(&ts, s);
         let d = apply(&td, d);
         let r = 2 * i;
-        a.row_mut(r).copy_from_slice(&[-s.x, -s.y, -1.0, 0.0, 0.0, 0.0, d.x * s.x, d.x * s.y, d.x]);
-        a.row_mut(r + 1)
-            .copy_from_slice(&[0.0, 0.0, 0.0, -s.x, -s.y, -1.0, d.y * s.x, d.y * s.y, d.y]);
+        a.row_mut(r)
+            .copy_from_slice(&[-s.x, -s.y, -1.0, 0.0, 0.0, 0.0, d.x * s.x, d.x * s.y, d.x]);
+        a.row_mut(r + 1).copy_from_slice(&[
+            0.0,
+            0.0,
+            0.0,
+            -s.x,
+            -s.y,
+            -1.0,
+            d.y * s.x,
+            d.y * s.y,
+            d.y,
+        ]);
     }
     let svd = a.svd(false, true);
     let v_t = svd
@@ -159,8 +183,26 @@ pub fn refine_homography(
             let w = hn * Vector3::new(p.x, p.y, 1.0);
             let (u, v) = (w.x / w.z, w.y / w.z);
             let iz = 1.0 / w.z;
-            let ju = [p.x * iz, p.y * iz, iz, 0.0, 0.0, 0.0, -u * p.x * iz, -u * p.y * iz];
-            let jv = [0.0, 0.0, 0.0, p.x * iz, p.y * iz, iz, -v * p.x * iz, -v * p.y * iz];
+            let ju = [
+                p.x * iz,
+                p.y * iz,
+                iz,
+                0.0,
+                0.0,
+                0.0,
+                -u * p.x * iz,
+                -u * p.y * iz,
+            ];
+            let jv = [
+                0.0,
+                0.0,
+                0.0,
+                p.x * iz,
+                p.y * iz,
+                iz,
+                -v * p.x * iz,
+                -v * p.y * iz,
+            ];
             let (ru, rv) = (u - q.x, v - q.y);
             for i in 0..8 {
                 jtr[i] += ju[i] * ru + jv[i] * rv;

@@ -103,13 +103,8 @@ pub async fn list_datasets(
     ApiQuery(q): ApiQuery<PageQuery>,
 ) -> ApiResult<axum::Json<DatasetPage>> {
     let limit = super::page_limit(q.limit)?;
-    let mut items = state.store().list_datasets(q.cursor, limit + 1).await?;
-    let next_cursor = if items.len() > limit as usize {
-        items.truncate(limit as usize);
-        items.last().map(|d| d.id.to_string())
-    } else {
-        None
-    };
+    let rows = state.store().list_datasets(q.cursor, limit + 1).await?;
+    let (items, next_cursor) = super::paginate(rows, limit, |d| d.id);
     Ok(axum::Json(DatasetPage {
         items: items.into_iter().map(DatasetView::from).collect(),
         next_cursor,

@@ -323,17 +323,21 @@ pub async fn list_jobs(
         before_id: q.cursor,
         limit: limit + 1,
     };
-    let mut items = state.store().list_jobs(&filter).await?;
-    let next_cursor = if items.len() > limit as usize {
-        items.truncate(limit as usize);
-        items.last().map(|j| j.id.to_string())
-    } else {
-        None
-    };
+    let rows = state.store().list_jobs(&filter).await?;
+    let (items, next_cursor) = super::paginate(rows, limit, |j| j.id);
     Ok(axum::Json(JobPage {
         items: items.iter().map(JobView::from).collect(),
         next_cursor,
     }))
+}
+
+/// Read a job or answer 404.
+async fn load_job(state: &AppState, id: Uuid) -> ApiResult<crate::store::JobRecord> {
+    state
+        .store()
+        .get_job(id)
+        .await?
+        .ok_or_else(|| ApiError::not_found(format!("job {id}")))
 }
 
 /// Get a job.
@@ -348,13 +352,28 @@ pub async fn list_jobs(
 pub async fn get_job(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<Uuid>,
-) -> ApiResult<axum::Json<JobView>> {
-    let job = state
-        .store()
-        .get_job(id)
-        .await?
-        .ok_or_else(|| ApiError::not_found(format!("job {id}")))?;
-    Ok(axum::Json(JobView::from(&job)))
+) -> ApiResult<Response> {
+    let body = match state.cached_job(&id) {
+        Some(body) => body,
+        None => {
+            let job = load_job(&state, id).await?;
+            let body = bytes::Bytes::from(
+                serde_json::to_vec(&JobView::from(&job)).map_err(ApiError::internal)?,
+            );
+            if job.status.is_terminal() {
+                state.cache_job(id, body.clone());
+            }
+            body
+        }
+    };
+    Ok((
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        )],
+        body,
+    )
+        .into_response())
 }
 
 /// Cancel a job.
@@ -416,11 +435,7 @@ pub async fn job_events(
 ) -> ApiResult<Sse<impl Stream<Item = Result<Event, Infallible>>>> {
     // Subscribe before reading the current state so no change falls between the two.
     let mut rx = state.subscribe();
-    let job = state
-        .store()
-        .get_job(id)
-        .await?
-        .ok_or_else(|| ApiError::not_found(format!("job {id}")))?;
+    let job = load_job(&state, id).await?;
     let (tx, out) = tokio::sync::mpsc::channel::<Event>(16);
     let st = state.clone();
     tokio::spawn(async move {
@@ -490,12 +505,12 @@ pub async fn job_result(
     ApiPath(id): ApiPath<Uuid>,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
-    let job = state
-        .store()
-        .get_job(id)
-        .await?
-        .ok_or_else(|| ApiError::not_found(format!("job {id}")))?;
-    let Some(result) = job.result.filter(|_| job.status == JobStatus::Succeeded) else {
+    let job = load_job(&state, id).await?;
+    let result = match job.status {
+        JobStatus::Succeeded => state.store().get_job_result(id).await?,
+        _ => None,
+    };
+    let Some(body) = result else {
         return Err(ApiError::new(
             "result_not_ready",
             format!(
@@ -504,16 +519,11 @@ pub async fn job_result(
             ),
         ));
     };
-    let etag = result
-        .get("etag")
-        .and_then(Value::as_str)
-        .unwrap_or("")
-        .to_string();
-    Ok(super::documents::json_with_etag(
-        crate::document::canonical_json(&result),
-        &etag,
-        &headers,
-    ))
+    let etag = serde_json::from_str::<Value>(&body)
+        .ok()
+        .and_then(|v| v.get("etag").and_then(Value::as_str).map(String::from))
+        .unwrap_or_default();
+    Ok(super::documents::json_with_etag(body, &etag, &headers))
 }
 
 /// List a job's artifacts.
@@ -529,9 +539,7 @@ pub async fn list_artifacts(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<Uuid>,
 ) -> ApiResult<axum::Json<ArtifactList>> {
-    if state.store().get_job(id).await?.is_none() {
-        return Err(ApiError::not_found(format!("job {id}")));
-    }
+    load_job(&state, id).await?;
     let items = state
         .store()
         .list_artifacts(id)

@@ -37,9 +37,35 @@ use crate::state::AppState;
         (name = "documents", description = "Versioned calibration documents per device"),
         (name = "operations", description = "Health, metrics, problem types"),
     ),
-    components(schemas(Problem, caliper_core::blur::BlurParams))
+    components(schemas(Problem, caliper_core::blur::BlurParams)),
+    modifiers(&ProblemCodes)
 )]
 struct ApiDoc;
+
+/// Publishes every problem code as the enum of `Problem.code`, so generated clients can
+/// switch on them (the table in `error.rs` stays the single source).
+struct ProblemCodes;
+
+impl utoipa::Modify for ProblemCodes {
+    fn modify(&self, api: &mut utoipa::openapi::OpenApi) {
+        use utoipa::openapi::RefOr;
+        use utoipa::openapi::schema::Schema;
+        let Some(components) = api.components.as_mut() else {
+            return;
+        };
+        let Some(RefOr::T(Schema::Object(problem))) = components.schemas.get_mut("Problem") else {
+            return;
+        };
+        if let Some(RefOr::T(Schema::Object(code))) = problem.properties.get_mut("code") {
+            code.enum_values = Some(
+                crate::error::PROBLEM_CODES
+                    .iter()
+                    .map(|(c, _, _)| serde_json::Value::from(*c))
+                    .collect(),
+            );
+        }
+    }
+}
 
 /// Largest JSON body (job requests are small).
 const JSON_BODY_LIMIT: usize = 1 << 20;
@@ -91,6 +117,22 @@ pub fn page_limit(limit: Option<u32>) -> ApiResult<u32> {
             ApiError::new("invalid_query", format!("limit must be 1–100, got {n}"))
                 .with_field("limit"),
         ),
+    }
+}
+
+/// Cut a page fetched with `limit + 1` rows down to `limit`, returning the cursor of the
+/// next page when there is one (the id of the last row kept; ids are time-ordered UUIDv7).
+pub fn paginate<T>(
+    mut items: Vec<T>,
+    limit: u32,
+    id: impl Fn(&T) -> uuid::Uuid,
+) -> (Vec<T>, Option<String>) {
+    if items.len() > limit as usize {
+        items.truncate(limit as usize);
+        let next = items.last().map(|x| id(x).to_string());
+        (items, next)
+    } else {
+        (items, None)
     }
 }
 

@@ -56,9 +56,8 @@ pub fn sniff(head: &[u8]) -> Sniffed {
         Sniffed::Zip
     } else if starts(&[0x1F, 0x8B]) {
         Sniffed::Gzip
-    } else if head.len() >= 12 && &head[4..8] == b"ftyp" {
-        Sniffed::Mp4
-    } else if head.len() >= 8 && (&head[4..8] == b"moov" || &head[4..8] == b"mdat") {
+    } else if head.len() >= 8 && matches!(&head[4..8], b"ftyp" | b"moov" | b"mdat") {
+        // ISO BMFF (MP4/MOV): a box size, then the first box type.
         Sniffed::Mp4
     } else if starts(&[0x1A, 0x45, 0xDF, 0xA3]) {
         Sniffed::Matroska

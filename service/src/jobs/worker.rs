@@ -169,6 +169,7 @@ pub async fn prune(state: &AppState) {
     let before = now_ms() - state.config().retention_days as i64 * 86_400_000;
     match state.store().prune_jobs(before).await {
         Ok(orphans) => {
+            state.clear_job_cache();
             for sha in orphans {
                 if let Err(e) = state.blobs().delete(&sha).await {
                     tracing::warn!(error = %e, "cannot delete pruned artifact blob");

@@ -145,7 +145,6 @@ pub struct JobRecord {
     pub cancel_requested: bool,
     pub progress: Option<Value>,
     pub error: Option<Value>,
-    pub result: Option<Value>,
     pub document_rev: Option<u64>,
     pub idempotency_key: Option<String>,
     pub request_hash: Option<String>,
@@ -313,7 +312,10 @@ pub trait Store: Send + Sync + 'static {
     async fn delete_dataset(&self, id: Uuid) -> StoreResult<DeleteDataset>;
 
     async fn create_job(&self, job: NewJob, max_queued: u64) -> StoreResult<CreateJob>;
+    /// A job's row without its result (the document can be large; see [`Store::get_job_result`]).
     async fn get_job(&self, id: Uuid) -> StoreResult<Option<JobRecord>>;
+    /// The sealed result document (canonical JSON) of a succeeded job.
+    async fn get_job_result(&self, id: Uuid) -> StoreResult<Option<String>>;
     async fn list_jobs(&self, filter: &JobFilter) -> StoreResult<Vec<JobRecord>>;
     async fn cancel_job(&self, id: Uuid, now: i64) -> StoreResult<CancelJob>;
     async fn queue_depth(&self) -> StoreResult<(u64, u64)>;
@@ -367,3 +369,6 @@ pub trait Store: Send + Sync + 'static {
         kind: &str,
     ) -> StoreResult<Vec<DocumentRecord>>;
 }
+
+#[cfg(test)]
+mod tests;

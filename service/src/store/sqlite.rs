@@ -24,7 +24,7 @@ use crate::document;
 const MIGRATIONS: &[&str] = &[include_str!("schema_v1.sql")];
 
 const JOB_COLS: &str = "id, kind, dataset_id, device, sensor, params, status, attempt, max_attempts, \
-    run_at, lease_owner, lease_expires_at, cancel_requested, progress, error, result, document_rev, \
+    run_at, lease_owner, lease_expires_at, cancel_requested, progress, error, document_rev, \
     idempotency_key, request_hash, created_at, started_at, finished_at";
 
 /// SQLite-backed [`Store`].
@@ -93,6 +93,27 @@ impl SqliteStore {
     }
 }
 
+/// The blob keys among `shas` that no dataset file and no artifact references any more.
+async fn unreferenced(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    shas: Vec<String>,
+) -> StoreResult<Vec<String>> {
+    let mut orphans = Vec::new();
+    for sha in shas {
+        let used: Option<i64> = sqlx::query_scalar(
+            "SELECT 1 FROM dataset_files WHERE sha256 = ? UNION ALL SELECT 1 FROM artifacts WHERE sha256 = ? LIMIT 1",
+        )
+        .bind(&sha)
+        .bind(&sha)
+        .fetch_optional(&mut **tx)
+        .await?;
+        if used.is_none() {
+            orphans.push(sha);
+        }
+    }
+    Ok(orphans)
+}
+
 fn only_comments(s: &str) -> bool {
     s.lines().all(|l| {
         let l = l.trim();
@@ -129,7 +150,6 @@ fn job_from_row(r: &SqliteRow) -> StoreResult<JobRecord> {
         cancel_requested: r.try_get::<i64, _>("cancel_requested")? != 0,
         progress: parse_json(r.try_get("progress")?)?,
         error: parse_json(r.try_get("error")?)?,
-        result: parse_json(r.try_get("result")?)?,
         document_rev: r
             .try_get::<Option<i64>, _>("document_rev")?
             .map(|v| v as u64),
@@ -319,19 +339,7 @@ impl Store for SqliteStore {
             .bind(id.to_string())
             .execute(&mut *tx)
             .await?;
-        let mut orphans = Vec::new();
-        for sha in shas {
-            let used: Option<i64> = sqlx::query_scalar(
-                "SELECT 1 FROM dataset_files WHERE sha256 = ? UNION ALL SELECT 1 FROM artifacts WHERE sha256 = ? LIMIT 1",
-            )
-            .bind(&sha)
-            .bind(&sha)
-            .fetch_optional(&mut *tx)
-            .await?;
-            if used.is_none() {
-                orphans.push(sha);
-            }
-        }
+        let orphans = unreferenced(&mut tx, shas).await?;
         tx.commit().await?;
         Ok(DeleteDataset::Deleted {
             orphan_blobs: orphans,
@@ -401,6 +409,15 @@ impl Store for SqliteStore {
             .as_ref()
             .map(job_from_row)
             .transpose()
+    }
+
+    async fn get_job_result(&self, id: Uuid) -> StoreResult<Option<String>> {
+        let r: Option<Option<String>> =
+            sqlx::query_scalar("SELECT result FROM jobs WHERE id = ? AND status = 'succeeded'")
+                .bind(id.to_string())
+                .fetch_optional(&self.read)
+                .await?;
+        Ok(r.flatten())
     }
 
     async fn list_jobs(&self, f: &JobFilter) -> StoreResult<Vec<JobRecord>> {
@@ -805,19 +822,7 @@ impl Store for SqliteStore {
         }
         candidates.sort();
         candidates.dedup();
-        let mut orphans = Vec::new();
-        for sha in candidates {
-            let used: Option<i64> = sqlx::query_scalar(
-                "SELECT 1 FROM artifacts WHERE sha256 = ? UNION ALL SELECT 1 FROM dataset_files WHERE sha256 = ? LIMIT 1",
-            )
-            .bind(&sha)
-            .bind(&sha)
-            .fetch_optional(&mut *tx)
-            .await?;
-            if used.is_none() {
-                orphans.push(sha);
-            }
-        }
+        let orphans = unreferenced(&mut tx, candidates).await?;
         tx.commit().await?;
         Ok(orphans)
     }

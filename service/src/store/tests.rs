@@ -1,0 +1,313 @@
+//! Queue semantics of the SQLite store: exclusive claims, fencing, lease recovery, retries,
+//! idempotency, cancellation, document revisions and pruning.
+
+use serde_json::json;
+use uuid::Uuid;
+
+use super::*;
+
+async fn store() -> (SqliteStore, tempfile::TempDir) {
+    let dir = tempfile::tempdir().unwrap();
+    let s = SqliteStore::open(&dir.path().join("t.db")).await.unwrap();
+    (s, dir)
+}
+
+async fn dataset(s: &SqliteStore) -> Uuid {
+    let id = Uuid::now_v7();
+    s.insert_dataset(&DatasetRecord {
+        id,
+        kind: DatasetKind::Images,
+        created_at: 0,
+        total_bytes: 1,
+        sha256: "x".into(),
+        files: vec![DatasetFile {
+            name: "a.png".into(),
+            sha256: "abc".into(),
+            size: 1,
+            media_type: "image/png".into(),
+            image: None,
+        }],
+    })
+    .await
+    .unwrap();
+    id
+}
+
+fn new_job(ds: Uuid, key: Option<&str>, hash: &str, now: i64) -> NewJob {
+    NewJob {
+        id: Uuid::now_v7(),
+        kind: "blur_score".into(),
+        dataset_id: ds,
+        device: Some("dev".into()),
+        sensor: Some("cam0".into()),
+        params: json!({}),
+        max_attempts: 2,
+        idempotency_key: key.map(String::from),
+        request_hash: Some(hash.into()),
+        now,
+    }
+}
+
+async fn created(s: &SqliteStore, j: NewJob) -> JobRecord {
+    match s.create_job(j, 100).await.unwrap() {
+        CreateJob::Created(r) => r,
+        other => panic!("expected Created, got {other:?}"),
+    }
+}
+
+#[tokio::test]
+async fn a_job_is_claimed_by_exactly_one_worker() {
+    let (s, _d) = store().await;
+    let ds = dataset(&s).await;
+    let job = created(&s, new_job(ds, None, "h", 1000)).await;
+    let (a, b) = (Uuid::now_v7(), Uuid::now_v7());
+    let (ra, rb) = tokio::join!(s.claim_job(a, 2000, 9000), s.claim_job(b, 2000, 9000));
+    let claims: Vec<_> = [ra.unwrap(), rb.unwrap()].into_iter().flatten().collect();
+    assert_eq!(claims.len(), 1);
+    assert_eq!(claims[0].id, job.id);
+    assert_eq!(claims[0].attempt, 1);
+    assert_eq!(claims[0].status, JobStatus::Running);
+}
+
+#[tokio::test]
+async fn writes_from_an_expired_lease_are_fenced_off() {
+    let (s, _d) = store().await;
+    let ds = dataset(&s).await;
+    let job = created(&s, new_job(ds, None, "h", 1000)).await;
+    let old = Uuid::now_v7();
+    s.claim_job(old, 2000, 3000).await.unwrap().unwrap();
+    // The lease expires; recovery re-queues; another worker claims attempt 2.
+    assert_eq!(s.recover_leases(5000, false).await.unwrap(), 1);
+    let new = Uuid::now_v7();
+    let j2 = s.claim_job(new, 5000, 9000).await.unwrap().unwrap();
+    assert_eq!(j2.attempt, 2);
+    // The old worker wakes up: heartbeat and completion are refused.
+    assert_eq!(
+        s.heartbeat(job.id, old, 1, 9999, None).await.unwrap(),
+        Heartbeat::Lost
+    );
+    let late = Finish::Succeeded {
+        result: json!({"schema": "x"}),
+        document: Some(NewDocument {
+            device: "dev".into(),
+            sensor: "cam0".into(),
+            kind: "blur_score".into(),
+            schema: "x".into(),
+        }),
+        artifacts: vec![],
+    };
+    assert!(
+        !s.finish_job(job.id, old, 1, 6000, late.clone())
+            .await
+            .unwrap()
+    );
+    assert!(
+        s.get_document("dev", "cam0", "blur_score", None)
+            .await
+            .unwrap()
+            .is_none()
+    );
+    // The current holder completes it, once.
+    assert_eq!(
+        s.heartbeat(job.id, new, 2, 9999, Some(&json!({"percent": 50.0})))
+            .await
+            .unwrap(),
+        Heartbeat::Renewed { cancel: false }
+    );
+    assert!(
+        s.finish_job(job.id, new, 2, 7000, late.clone())
+            .await
+            .unwrap()
+    );
+    assert!(
+        !s.finish_job(job.id, new, 2, 7001, late).await.unwrap(),
+        "a second completion is refused"
+    );
+    let revs = s.list_revisions("dev", "cam0", "blur_score").await.unwrap();
+    assert_eq!(revs.len(), 1);
+    let done = s.get_job(job.id).await.unwrap().unwrap();
+    assert_eq!(done.status, JobStatus::Succeeded);
+    assert_eq!(done.document_rev, Some(1));
+}
+
+#[tokio::test]
+async fn retries_wait_for_their_time_and_attempts_run_out() {
+    let (s, _d) = store().await;
+    let ds = dataset(&s).await;
+    let job = created(&s, new_job(ds, None, "h", 1000)).await;
+    let w = Uuid::now_v7();
+    s.claim_job(w, 1000, 9000).await.unwrap().unwrap();
+    let retry = Finish::Retry {
+        error: json!({"code": "transient", "message": "io"}),
+        run_at: 5000,
+    };
+    assert!(
+        s.finish_job(job.id, w, 1, 1100, retry.clone())
+            .await
+            .unwrap()
+    );
+    assert!(
+        s.claim_job(w, 4999, 9000).await.unwrap().is_none(),
+        "not before run_at"
+    );
+    let j = s.claim_job(w, 5000, 9000).await.unwrap().unwrap();
+    assert_eq!(j.attempt, 2);
+    // max_attempts = 2: the next transient failure is final.
+    assert!(s.finish_job(job.id, w, 2, 5100, retry).await.unwrap());
+    let j = s.get_job(job.id).await.unwrap().unwrap();
+    assert_eq!(j.status, JobStatus::Failed);
+    assert_eq!(j.error.unwrap()["attempts_exhausted"], 2);
+}
+
+#[tokio::test]
+async fn lost_leases_fail_once_attempts_are_used_up() {
+    let (s, _d) = store().await;
+    let ds = dataset(&s).await;
+    let job = created(&s, new_job(ds, None, "h", 1000)).await;
+    for attempt in 1..=2 {
+        let t = 3000 * attempt as i64;
+        let j = s
+            .claim_job(Uuid::now_v7(), t, t + 1000)
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(j.attempt, attempt);
+        assert_eq!(s.recover_leases(t + 2000, false).await.unwrap(), 1);
+    }
+    let j = s.get_job(job.id).await.unwrap().unwrap();
+    assert_eq!(j.status, JobStatus::Failed);
+    assert_eq!(j.error.unwrap()["code"], "lease_lost");
+    // A live lease is left alone.
+    let other = created(&s, new_job(ds, None, "h2", 1000)).await;
+    s.claim_job(Uuid::now_v7(), 9000, 20_000)
+        .await
+        .unwrap()
+        .unwrap();
+    assert_eq!(s.recover_leases(10_000, false).await.unwrap(), 0);
+    assert_eq!(
+        s.recover_leases(10_000, true).await.unwrap(),
+        1,
+        "start-up recovery takes all"
+    );
+    assert_eq!(
+        s.get_job(other.id).await.unwrap().unwrap().status,
+        JobStatus::Queued
+    );
+}
+
+#[tokio::test]
+async fn idempotency_keys_and_the_queue_bound() {
+    let (s, _d) = store().await;
+    let ds = dataset(&s).await;
+    let first = created(&s, new_job(ds, Some("k"), "h1", 1000)).await;
+    match s
+        .create_job(new_job(ds, Some("k"), "h1", 1001), 100)
+        .await
+        .unwrap()
+    {
+        CreateJob::Existing(j) => assert_eq!(j.id, first.id),
+        other => panic!("{other:?}"),
+    }
+    assert!(matches!(
+        s.create_job(new_job(ds, Some("k"), "h2", 1002), 100)
+            .await
+            .unwrap(),
+        CreateJob::Conflict(_)
+    ));
+    assert!(matches!(
+        s.create_job(new_job(ds, None, "h3", 1003), 1)
+            .await
+            .unwrap(),
+        CreateJob::QueueFull
+    ));
+    assert!(matches!(
+        s.create_job(new_job(Uuid::now_v7(), None, "h4", 1003), 100)
+            .await
+            .unwrap(),
+        CreateJob::UnknownDataset
+    ));
+}
+
+#[tokio::test]
+async fn cancel_queued_running_and_finished() {
+    let (s, _d) = store().await;
+    let ds = dataset(&s).await;
+    let a = created(&s, new_job(ds, None, "a", 1000)).await;
+    let w = Uuid::now_v7();
+    s.claim_job(w, 1000, 9000).await.unwrap().unwrap();
+    let b = created(&s, new_job(ds, None, "b", 1001)).await;
+    assert!(matches!(
+        s.cancel_job(b.id, 1100).await.unwrap(),
+        CancelJob::Canceled(_)
+    ));
+    assert!(matches!(
+        s.cancel_job(a.id, 1100).await.unwrap(),
+        CancelJob::Requested(_)
+    ));
+    assert_eq!(
+        s.heartbeat(a.id, w, 1, 9000, None).await.unwrap(),
+        Heartbeat::Renewed { cancel: true }
+    );
+    assert!(
+        s.finish_job(a.id, w, 1, 1200, Finish::Canceled)
+            .await
+            .unwrap()
+    );
+    assert!(matches!(
+        s.cancel_job(a.id, 1300).await.unwrap(),
+        CancelJob::Finished(_)
+    ));
+    assert!(matches!(
+        s.cancel_job(Uuid::now_v7(), 1300).await.unwrap(),
+        CancelJob::NotFound
+    ));
+    // A canceled job is never claimed.
+    assert!(s.claim_job(w, 2000, 9000).await.unwrap().is_none());
+}
+
+#[tokio::test]
+async fn pruning_removes_old_finished_jobs_and_reports_orphan_artifacts() {
+    let (s, _d) = store().await;
+    let ds = dataset(&s).await;
+    let j = created(&s, new_job(ds, None, "a", 1000)).await;
+    let w = Uuid::now_v7();
+    s.claim_job(w, 1000, 9000).await.unwrap().unwrap();
+    let fin = Finish::Succeeded {
+        result: json!({}),
+        document: None,
+        artifacts: vec![ArtifactRecord {
+            name: "p.svg".into(),
+            media_type: "image/svg+xml".into(),
+            sha256: "feed".into(),
+            size: 4,
+        }],
+    };
+    assert!(s.finish_job(j.id, w, 1, 2000, fin).await.unwrap());
+    assert!(s.prune_jobs(1500).await.unwrap().is_empty(), "too recent");
+    assert!(s.get_job(j.id).await.unwrap().is_some());
+    assert_eq!(s.prune_jobs(2500).await.unwrap(), vec!["feed".to_string()]);
+    assert!(s.get_job(j.id).await.unwrap().is_none());
+}
+
+#[tokio::test]
+async fn deleting_a_dataset_reports_unshared_blobs() {
+    let (s, _d) = store().await;
+    let a = dataset(&s).await;
+    let b = dataset(&s).await;
+    match s.delete_dataset(a).await.unwrap() {
+        DeleteDataset::Deleted { orphan_blobs } => {
+            assert!(orphan_blobs.is_empty(), "b still uses it")
+        }
+        other => panic!("{other:?}"),
+    }
+    match s.delete_dataset(b).await.unwrap() {
+        DeleteDataset::Deleted { orphan_blobs } => {
+            assert_eq!(orphan_blobs, vec!["abc".to_string()])
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(matches!(
+        s.delete_dataset(b).await.unwrap(),
+        DeleteDataset::NotFound
+    ));
+}
