@@ -49,6 +49,11 @@ pub const PROBLEM_CODES: &[(&str, u16, &str)] = &[
     ("malformed_json", 400, "Request body is not valid JSON"),
     ("invalid_query", 400, "Invalid query parameter"),
     ("invalid_header", 400, "Invalid request header"),
+    (
+        "unsupported_format",
+        400,
+        "Export format not available for this document",
+    ),
     ("not_found", 404, "Resource not found"),
     ("route_not_found", 404, "No such route"),
     (

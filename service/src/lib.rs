@@ -11,6 +11,7 @@ pub mod clock;
 pub mod config;
 pub mod document;
 pub mod error;
+pub mod exports;
 pub mod ingest;
 pub mod jobs;
 pub mod offline;

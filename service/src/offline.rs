@@ -15,6 +15,33 @@ use crate::store::DatasetFile;
 pub enum RunCommand {
     /// Score images for blur (Laplacian variance, singular-value feature) and rank them.
     BlurScore(BlurScoreArgs),
+    /// Calibrate a camera from chessboard images.
+    CameraCalibration(CameraCalibrationArgs),
+}
+
+/// Flags of `caliper run camera-calibration`.
+#[derive(Debug, Args)]
+pub struct CameraCalibrationArgs {
+    /// Inner corners, COLSxROWS (e.g. 9x6).
+    #[arg(long)]
+    pub board: String,
+    /// Square side, in `--unit`.
+    #[arg(long)]
+    pub square: f64,
+    /// Unit of `--square`: m, cm, mm, in, squares [default: m].
+    #[arg(long)]
+    pub unit: Option<String>,
+    /// pinhole_radtan, kannala_brandt or double_sphere [default: pinhole_radtan].
+    #[arg(long)]
+    pub model: Option<String>,
+    /// Calibration options as JSON (see the `CalibOptions` schema), e.g. '{"fix_k3": true}'.
+    #[arg(long)]
+    pub options: Option<String>,
+    /// Print this export instead of the document: opencv-yaml, ros-yaml, kalibr-yaml, json.
+    #[arg(long)]
+    pub export: Option<String>,
+    #[command(flatten)]
+    pub common: CommonArgs,
 }
 
 /// Flags of `caliper run blur-score`.
@@ -61,7 +88,9 @@ pub enum RunError {
     Io(#[from] std::io::Error),
 }
 
-fn expand(inputs: &[PathBuf]) -> Result<Vec<PathBuf>, RunError> {
+/// Files named on the command line, plus the files of named directories (flagged `true`:
+/// non-images among those are skipped rather than refused).
+fn expand(inputs: &[PathBuf]) -> Result<Vec<(PathBuf, bool)>, RunError> {
     let mut out = Vec::new();
     for p in inputs {
         if p.is_dir() {
@@ -70,9 +99,9 @@ fn expand(inputs: &[PathBuf]) -> Result<Vec<PathBuf>, RunError> {
                 .filter(|p| p.is_file())
                 .collect();
             entries.sort();
-            out.extend(entries);
+            out.extend(entries.into_iter().map(|e| (e, true)));
         } else if p.is_file() {
-            out.push(p.clone());
+            out.push((p.clone(), false));
         } else {
             return Err(RunError::Input(format!("{} does not exist", p.display())));
         }
@@ -84,12 +113,16 @@ fn expand(inputs: &[PathBuf]) -> Result<Vec<PathBuf>, RunError> {
 }
 
 /// Describe local image files as a dataset would (hash, size, validated header).
-fn image_files(paths: &[PathBuf]) -> Result<Vec<(DatasetFile, PathBuf)>, RunError> {
+fn image_files(paths: &[(PathBuf, bool)]) -> Result<Vec<(DatasetFile, PathBuf)>, RunError> {
     let limits = crate::config::Config::default().image_limits();
     let mut files = Vec::new();
     let mut names = std::collections::HashSet::new();
-    for p in paths {
+    for (p, from_dir) in paths {
         let bytes = std::fs::read(p)?;
+        if *from_dir && !crate::ingest::sniff::sniff(&bytes[..bytes.len().min(64)]).is_image() {
+            eprintln!("caliper: skipping {} (not an image)", p.display());
+            continue;
+        }
         let name = p
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -132,6 +165,41 @@ pub fn run(cmd: RunCommand) -> Result<String, RunError> {
             }
             run_kind("blur_score", Value::Object(params), &a.common)
         }
+        RunCommand::CameraCalibration(a) => {
+            let (cols, rows) = a
+                .board
+                .split_once(['x', 'X'])
+                .and_then(|(c, r)| {
+                    Some((
+                        c.trim().parse::<usize>().ok()?,
+                        r.trim().parse::<usize>().ok()?,
+                    ))
+                })
+                .ok_or_else(|| {
+                    RunError::Input(format!("--board must be COLSxROWS, got {:?}", a.board))
+                })?;
+            let mut params = json!({"board": {"cols": cols, "rows": rows, "square": a.square}});
+            if let Some(u) = &a.unit {
+                params["board"]["unit"] = json!(u);
+            }
+            if let Some(m) = &a.model {
+                params["model"] = json!(m);
+            }
+            if let Some(o) = &a.options {
+                params["options"] = serde_json::from_str(o)
+                    .map_err(|e| RunError::Input(format!("--options is not JSON: {e}")))?;
+            }
+            let doc = run_kind("camera_calibration", params, &a.common)?;
+            match &a.export {
+                None => Ok(doc),
+                Some(f) => {
+                    let v: Value =
+                        serde_json::from_str(&doc).map_err(|e| RunError::Job(e.to_string()))?;
+                    crate::exports::render(&v, f)
+                        .map_err(|e| RunError::Input(e.detail.unwrap_or_default()))
+                }
+            }
+        }
     }
 }
 
@@ -147,6 +215,9 @@ fn run_kind(kind_name: &str, params: Value, common: &CommonArgs) -> Result<Strin
     })?;
     let paths = expand(&common.inputs)?;
     let described = image_files(&paths)?;
+    if described.is_empty() {
+        return Err(RunError::Input("no images among the inputs".into()));
+    }
     let by_sha: std::collections::HashMap<String, PathBuf> = described
         .iter()
         .map(|(f, p)| (f.sha256.clone(), p.clone()))

@@ -2,6 +2,8 @@
 //! and upload/poll helpers.
 
 use std::io::Cursor;
+use std::path::PathBuf;
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use caliper_service::config::Config;
@@ -218,4 +220,25 @@ pub fn count_files(dir: &std::path::Path) -> usize {
             if p.is_dir() { count_files(&p) } else { 1 }
         })
         .sum()
+}
+
+/// The `caliper` binary next to this test's build output, built if missing.
+pub fn caliper_bin() -> PathBuf {
+    if let Ok(p) = std::env::var("CALIPER_BIN") {
+        return PathBuf::from(p);
+    }
+    let exe = std::env::current_exe().expect("current exe");
+    let profile_dir = exe.parent().and_then(|d| d.parent()).expect("target dir");
+    let bin = profile_dir.join("caliper");
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut cmd = Command::new(cargo);
+    cmd.args(["build", "-p", "caliper-service", "--bin", "caliper"]);
+    if profile_dir.file_name().is_some_and(|n| n == "release") {
+        cmd.arg("--release");
+    }
+    // Always (re)build: cargo is a no-op when the binary is fresh.
+    let status = cmd.status().expect("cargo build");
+    assert!(status.success(), "building the caliper binary failed");
+    assert!(bin.exists(), "no binary at {}", bin.display());
+    bin
 }

@@ -8,5 +8,6 @@ mod datasets;
 mod documents;
 mod errors;
 mod jobs;
+mod offline;
 mod openapi;
 mod recovery;

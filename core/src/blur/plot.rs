@@ -6,7 +6,7 @@ use super::{BlurParams, BlurReport};
 
 const SHARP: RGBColor = RGBColor(0x1f, 0x77, 0xb4);
 const BLURRED: RGBColor = RGBColor(0xd6, 0x27, 0x28);
-const THRESHOLD: RGBColor = RGBColor(0x55, 0x55, 0x55);
+const THRESHOLD: RGBColor = RGBColor(0xff, 0x7f, 0x0e);
 
 /// Scatter plot of Laplacian variance (x, log scale) against β (y), one dot per image, blue for
 /// sharp and red for blurred, with the two thresholds of `params` as grey lines. Returns the SVG
@@ -57,13 +57,13 @@ fn draw(out: &mut String, report: &BlurReport, params: &BlurParams) -> Result<()
     chart
         .draw_series(LineSeries::new(
             vec![(t, 0.0), (t, 1.0)],
-            THRESHOLD.stroke_width(1),
+            THRESHOLD.stroke_width(2),
         ))
         .map_err(e)?;
     chart
         .draw_series(LineSeries::new(
             vec![(lo, params.beta_threshold), (hi, params.beta_threshold)],
-            THRESHOLD.stroke_width(1),
+            THRESHOLD.stroke_width(2),
         ))
         .map_err(e)?;
     chart

@@ -26,6 +26,7 @@ mod homography;
 mod init;
 mod pnp;
 mod problem;
+pub mod report;
 mod zhang;
 
 #[cfg(test)]
