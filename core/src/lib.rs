@@ -6,10 +6,14 @@ pub mod blur;
 pub mod calib;
 pub mod camera;
 pub mod error;
+pub mod export;
+pub mod imu;
 pub mod io;
 pub mod lie;
 pub mod optim;
 pub mod progress;
+pub mod synth;
+pub mod target;
 
 pub use error::{CoreError, CoreResult};
 pub use progress::{NoProgress, Progress};

@@ -1,15 +1,67 @@
-//! Export formats of documents (`?format=`): rendered from a stored document on request.
+//! Export formats of documents (`?format=`), rendered on request from the stored document so
+//! that every revision can be exported in every format, including formats added later.
 
+use caliper_core::calib::{BoardGeometry, CalibOptions, Calibration};
 use serde_json::Value;
 
 use crate::error::ApiError;
 
-/// Render a document in an export format; returns the text.
-pub fn render(doc: &Value, format: &str) -> Result<String, ApiError> {
+/// An export: its text and media type.
+pub struct Rendered {
+    pub body: String,
+    pub media_type: &'static str,
+}
+
+/// Render a document in an export format.
+pub fn render(doc: &Value, format: &str) -> Result<Rendered, ApiError> {
     let schema = doc.get("schema").and_then(Value::as_str).unwrap_or("");
-    Err(ApiError::new(
-        "unsupported_format",
-        format!("documents of schema {schema:?} have no {format:?} export"),
-    )
-    .with_field("format"))
+    let unsupported = || {
+        ApiError::new(
+            "unsupported_format",
+            format!(
+                "documents of schema {schema:?} have no {format:?} export; camera documents offer opencv-yaml, ros-yaml, kalibr-yaml and json"
+            ),
+        )
+        .with_field("format")
+    };
+    if schema != "caliper.camera/v1" {
+        return Err(unsupported());
+    }
+    let fmt: caliper_core::export::ExportFormat = format.parse().map_err(|_| unsupported())?;
+    let params = &doc["parameters"];
+    let calibration: Calibration = serde_json::from_value(params["calibration"].clone())
+        .map_err(|e| ApiError::internal(format!("stored camera document unreadable: {e}")))?;
+    let board = &params["board"];
+    let board = match (
+        board["cols"].as_u64(),
+        board["rows"].as_u64(),
+        board["square"].as_f64(),
+    ) {
+        (Some(c), Some(r), Some(s)) => Some(BoardGeometry {
+            cols: c as usize,
+            rows: r as usize,
+            square: s,
+        }),
+        _ => None,
+    };
+    let options: Option<CalibOptions> =
+        serde_json::from_value(doc["provenance"]["params"]["options"].clone()).ok();
+    let name = match (doc["device"].as_str(), doc["sensor"].as_str()) {
+        (Some(d), Some(s)) => format!("{d}/{s}"),
+        _ => "camera".to_string(),
+    };
+    let input = caliper_core::export::ExportInput {
+        calibration: &calibration,
+        board,
+        options: options.as_ref(),
+        camera_name: &name,
+        rostopic: None,
+        calibration_time: doc["created_at"].as_str(),
+    };
+    let body = caliper_core::export::export(&input, fmt)
+        .map_err(|e| ApiError::new("unsupported_format", e.to_string()).with_field("format"))?;
+    Ok(Rendered {
+        body,
+        media_type: fmt.media_type(),
+    })
 }

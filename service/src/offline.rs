@@ -196,6 +196,7 @@ pub fn run(cmd: RunCommand) -> Result<String, RunError> {
                     let v: Value =
                         serde_json::from_str(&doc).map_err(|e| RunError::Job(e.to_string()))?;
                     crate::exports::render(&v, f)
+                        .map(|r| r.body)
                         .map_err(|e| RunError::Input(e.detail.unwrap_or_default()))
                 }
             }

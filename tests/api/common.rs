@@ -42,7 +42,12 @@ pub async fn start_with(tweak: impl FnOnce(&mut Config)) -> TestServer {
         .expect("server starts");
     TestServer {
         base: format!("http://{}", server.addr),
-        client: reqwest::Client::new(),
+        // No connection reuse: a server that answers early (413) closes that connection, and
+        // a pooled client would then fail its next request for a reason that is not the API's.
+        client: reqwest::Client::builder()
+            .pool_max_idle_per_host(0)
+            .build()
+            .expect("client"),
         server: Some(server),
         dir,
     }

@@ -3,6 +3,7 @@
 //! One test binary (link time), one module per area. Inputs are rendered in-test; nothing
 //! here needs files outside the repository.
 
+mod camera;
 mod common;
 mod datasets;
 mod documents;

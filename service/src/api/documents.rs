@@ -8,7 +8,7 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::extract::ApiPath;
+use super::extract::{ApiPath, ApiQuery};
 use crate::clock::rfc3339;
 use crate::error::{ApiError, ApiResult, Problem};
 use crate::state::AppState;
@@ -40,6 +40,39 @@ pub struct RevisionView {
     /// The job that wrote it.
     pub job: Option<uuid::Uuid>,
     pub href: String,
+}
+
+/// `?format=` of document reads.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct FormatQuery {
+    /// Export format instead of the JSON document: `opencv-yaml`, `ros-yaml`, `kalibr-yaml`
+    /// or `json` (camera documents).
+    pub format: Option<String>,
+}
+
+/// Respond with the document, or its export in `format`, with an ETag (the document's,
+/// suffixed with the format for exports) and 304 handling.
+pub fn document_response(
+    body: String,
+    etag: &str,
+    format: Option<&str>,
+    headers: &HeaderMap,
+) -> ApiResult<Response> {
+    let Some(format) = format else {
+        return Ok(json_with_etag(body, etag, headers));
+    };
+    let doc: serde_json::Value = serde_json::from_str(&body).map_err(ApiError::internal)?;
+    let out = crate::exports::render(&doc, format)?;
+    let mut resp = json_with_etag(out.body, &format!("{etag}-{format}"), headers);
+    if resp.status() == StatusCode::OK {
+        resp.headers_mut().insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static(out.media_type),
+        );
+    }
+    Ok(resp)
 }
 
 /// Respond with a JSON body and its ETag, or 304 if the client has it already.
@@ -133,16 +166,19 @@ pub async fn list_revisions(
     params(("serial" = String, Path, description = "Device serial"),
            ("sensor" = String, Path, description = "Sensor name"),
            ("kind" = String, Path, description = "Job kind, e.g. blur_score"),
+           FormatQuery,
            ("If-None-Match" = Option<String>, Header, description = "ETag from an earlier response")),
     responses(
         (status = 200, description = "The document", body = Object, headers(("ETag" = String, description = "Quoted document etag"))),
         (status = 304, description = "Not modified"),
+        (status = 400, description = "Format not available for this document (`unsupported_format`)", body = Problem, content_type = "application/problem+json"),
         (status = 404, description = "No such document", body = Problem, content_type = "application/problem+json"),
     )
 )]
 pub async fn latest_document(
     State(state): State<AppState>,
     ApiPath((serial, sensor, kind)): ApiPath<(String, String, String)>,
+    ApiQuery(q): ApiQuery<FormatQuery>,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let d = state
@@ -150,7 +186,7 @@ pub async fn latest_document(
         .get_document(&serial, &sensor, &kind, None)
         .await?
         .ok_or_else(|| ApiError::not_found(format!("document {kind} of {serial}/{sensor}")))?;
-    Ok(json_with_etag(d.body, &d.etag, &headers))
+    document_response(d.body, &d.etag, q.format.as_deref(), &headers)
 }
 
 /// A pinned revision of a document. Supports `If-None-Match` (304).
@@ -160,16 +196,19 @@ pub async fn latest_document(
            ("sensor" = String, Path, description = "Sensor name"),
            ("kind" = String, Path, description = "Job kind"),
            ("rev" = u64, Path, description = "Revision, from 1"),
+           FormatQuery,
            ("If-None-Match" = Option<String>, Header, description = "ETag from an earlier response")),
     responses(
         (status = 200, description = "The document", body = Object, headers(("ETag" = String, description = "Quoted document etag"))),
         (status = 304, description = "Not modified"),
+        (status = 400, description = "Format not available for this document (`unsupported_format`)", body = Problem, content_type = "application/problem+json"),
         (status = 404, description = "No such document or revision", body = Problem, content_type = "application/problem+json"),
     )
 )]
 pub async fn document_revision(
     State(state): State<AppState>,
     ApiPath((serial, sensor, kind, rev)): ApiPath<(String, String, String, u64)>,
+    ApiQuery(q): ApiQuery<FormatQuery>,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let d = state
@@ -181,5 +220,5 @@ pub async fn document_revision(
                 "revision {rev} of document {kind} of {serial}/{sensor}"
             ))
         })?;
-    Ok(json_with_etag(d.body, &d.etag, &headers))
+    document_response(d.body, &d.etag, q.format.as_deref(), &headers)
 }

@@ -46,8 +46,8 @@ pub struct CreateJobRequest {
     pub kind: String,
     /// Dataset id.
     pub dataset: Uuid,
-    /// Kind-specific parameters; omitted fields take their defaults. `blur_score`: see the
-    /// `BlurParams` schema.
+    /// Kind-specific parameters; omitted fields take their defaults. `blur_score`: the
+    /// `BlurParams` schema; `camera_calibration`: `CameraCalibParams`.
     #[serde(default = "empty_object")]
     #[schema(value_type = Object)]
     pub params: Value,
@@ -492,6 +492,7 @@ pub async fn job_events(
 #[utoipa::path(
     get, path = "/v1/jobs/{id}/result", tag = "jobs",
     params(("id" = Uuid, Path, description = "Job id"),
+           super::documents::FormatQuery,
            ("If-None-Match" = Option<String>, Header, description = "ETag from an earlier response")),
     responses(
         (status = 200, description = "The document", body = Object, headers(("ETag" = String, description = "Quoted document etag"))),
@@ -503,6 +504,7 @@ pub async fn job_events(
 pub async fn job_result(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<Uuid>,
+    ApiQuery(q): ApiQuery<super::documents::FormatQuery>,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
     let job = load_job(&state, id).await?;
@@ -523,7 +525,7 @@ pub async fn job_result(
         .ok()
         .and_then(|v| v.get("etag").and_then(Value::as_str).map(String::from))
         .unwrap_or_default();
-    Ok(super::documents::json_with_etag(body, &etag, &headers))
+    super::documents::document_response(body, &etag, q.format.as_deref(), &headers)
 }
 
 /// List a job's artifacts.

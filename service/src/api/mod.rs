@@ -37,7 +37,11 @@ use crate::state::AppState;
         (name = "documents", description = "Versioned calibration documents per device"),
         (name = "operations", description = "Health, metrics, problem types"),
     ),
-    components(schemas(Problem, caliper_core::blur::BlurParams)),
+    components(schemas(
+        Problem,
+        caliper_core::blur::BlurParams,
+        crate::jobs::camera_calibration::CameraCalibParams
+    )),
     modifiers(&ProblemCodes)
 )]
 struct ApiDoc;

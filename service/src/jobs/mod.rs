@@ -5,6 +5,7 @@
 //! progress, cancellation and a time limit, and the offline CLI runs the very same code.
 
 pub mod blur_score;
+pub mod camera_calibration;
 pub mod document;
 pub mod worker;
 
@@ -98,7 +99,10 @@ pub trait JobKind: Send + Sync + 'static {
 
 /// Every job kind this build knows.
 pub fn kinds() -> &'static [&'static dyn JobKind] {
-    static KINDS: [&dyn JobKind; 1] = [&blur_score::BlurScore];
+    static KINDS: [&dyn JobKind; 2] = [
+        &blur_score::BlurScore,
+        &camera_calibration::CameraCalibration,
+    ];
     &KINDS
 }
 

@@ -1,0 +1,316 @@
+//! `camera_calibration`: chessboard images → intrinsics and distortion with diagnostics.
+//!
+//! Per image: decode, score blur (Laplacian variance, the foundation's measure), detect the
+//! board. Then one joint solve over every usable view (`caliper_core::calib`), coverage of the
+//! image by the observed corners, and three SVG artifacts. Frames much blurrier than the set
+//! are left out of the solve (with the reason) because motion-blurred corners bias it.
+
+use caliper_core::Progress;
+use caliper_core::calib::report::{coverage, coverage_svg, residuals_svg, view_rms_svg};
+use caliper_core::calib::{BoardGeometry, CalibOptions, ModelKind, ViewObservations, calibrate};
+use caliper_core::io::{ImageLimits, decode_gray8};
+use caliper_core::target::{DetectOptions, Detection, detect_chessboard};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
+use utoipa::ToSchema;
+
+use super::{Artifact, JobError, JobInput, JobKind, JobOutput, param_error, parse_params};
+use crate::error::ApiError;
+use crate::store::DatasetKind;
+
+/// Unit of `board.square`; recorded in the document so extrinsics can be read in metres.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum LengthUnit {
+    #[default]
+    M,
+    Cm,
+    Mm,
+    In,
+    /// Board squares (when the size is unknown): translations come out in squares.
+    Squares,
+}
+
+/// The calibration board: a chessboard given by its inner corners.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct BoardParams {
+    /// Inner corners per row (OpenCV `patternSize.width`), e.g. 9.
+    pub cols: usize,
+    /// Inner corners per column, e.g. 6.
+    pub rows: usize,
+    /// Side of one square, in `unit`.
+    pub square: f64,
+    /// Unit of `square` (default `m`).
+    #[serde(default)]
+    pub unit: LengthUnit,
+}
+
+/// How blurred frames are treated.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct BlurPolicy {
+    /// Leave out frames much blurrier than the set (default true).
+    pub exclude: bool,
+    /// A frame is left out when its Laplacian variance is below this share of the set's
+    /// median (default 0.2): relative, because absolute thresholds depend on the content.
+    pub min_relative_sharpness: f64,
+}
+
+impl Default for BlurPolicy {
+    fn default() -> Self {
+        Self {
+            exclude: true,
+            min_relative_sharpness: 0.2,
+        }
+    }
+}
+
+fn default_model() -> ModelKind {
+    ModelKind::PinholeRadTan
+}
+
+/// Parameters of `camera_calibration`.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"board": {"cols": 9, "rows": 6, "square": 0.025, "unit": "m"}, "model": "pinhole_radtan"}))]
+pub struct CameraCalibParams {
+    pub board: BoardParams,
+    /// `pinhole_radtan` (default; OpenCV k1 k2 p1 p2 k3), `kannala_brandt` (OpenCV fisheye
+    /// k1..k4) or `double_sphere` (lenses near or past 180°).
+    #[serde(default = "default_model")]
+    pub model: ModelKind,
+    /// Fixed parameters, robust loss and outlier rejection.
+    #[serde(default)]
+    pub options: CalibOptions,
+    /// Treatment of blurred frames.
+    #[serde(default)]
+    pub blur: BlurPolicy,
+}
+
+/// What happened to one image.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct ImageOutcome {
+    name: String,
+    width: u32,
+    height: u32,
+    laplacian_variance: f64,
+    detected: bool,
+    corners: usize,
+    /// Why the image is not in the solve (no board, blurred).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    excluded: Option<String>,
+    #[serde(skip)]
+    points: Vec<[f64; 2]>,
+}
+
+/// The `camera_calibration` job kind.
+pub struct CameraCalibration;
+
+impl JobKind for CameraCalibration {
+    fn name(&self) -> &'static str {
+        "camera_calibration"
+    }
+
+    fn schema(&self) -> &'static str {
+        "caliper.camera/v1"
+    }
+
+    fn dataset_kind(&self) -> DatasetKind {
+        DatasetKind::Images
+    }
+
+    fn description(&self) -> &'static str {
+        "Calibrate a camera (pinhole + Brown-Conrady, Kannala-Brandt fisheye, double sphere) from chessboard images, with per-parameter uncertainty, coverage and residual diagnostics."
+    }
+
+    fn params_schema(&self) -> Value {
+        serde_json::to_value(<CameraCalibParams as utoipa::PartialSchema>::schema())
+            .unwrap_or(Value::Null)
+    }
+
+    fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
+        let p: CameraCalibParams = parse_params(params)?;
+        board_geometry(&p).validate().map_err(param_error)?;
+        p.options.validate(p.model).map_err(param_error)?;
+        if !(p.blur.min_relative_sharpness.is_finite()
+            && (0.0..1.0).contains(&p.blur.min_relative_sharpness))
+        {
+            return Err(ApiError::new("invalid_param", "must be in [0, 1)")
+                .with_field("params.blur.min_relative_sharpness"));
+        }
+        serde_json::to_value(&p).map_err(ApiError::internal)
+    }
+
+    fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
+        let p: CameraCalibParams =
+            serde_json::from_value(input.params.clone()).map_err(|e| JobError::Permanent {
+                code: "invalid_param",
+                message: e.to_string(),
+            })?;
+        let board = board_geometry(&p);
+        let limits = ImageLimits::default();
+        let total = input.files.len() as u64;
+        let done = std::sync::atomic::AtomicU64::new(0);
+        let detect_opts = DetectOptions::default();
+        let outcomes: Vec<Result<ImageOutcome, JobError>> = input
+            .files
+            .par_iter()
+            .map(|f| {
+                progress.check()?;
+                let bytes = (input.load)(f).map_err(|e| {
+                    JobError::Transient(format!("storage: cannot read {}: {e}", f.name))
+                })?;
+                let gray = decode_gray8(&bytes, &limits).map_err(|e| {
+                    JobError::from(caliper_core::CoreError::input(format!("{}: {e}", f.name)))
+                })?;
+                let lap = caliper_core::blur::laplacian_variance(&gray);
+                let det = detect_chessboard(&gray, board.cols, board.rows, &detect_opts);
+                let (detected, points, excluded) = match det {
+                    Detection::Found { corners, .. } => (true, corners, None),
+                    Detection::NotFound { reason } => {
+                        (false, Vec::new(), Some(format!("no board: {reason}")))
+                    }
+                };
+                let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                progress.report("detecting", n, total);
+                Ok(ImageOutcome {
+                    name: f.name.clone(),
+                    width: gray.width,
+                    height: gray.height,
+                    laplacian_variance: lap,
+                    detected,
+                    corners: points.len(),
+                    excluded,
+                    points,
+                })
+            })
+            .collect();
+        let mut images = outcomes.into_iter().collect::<Result<Vec<_>, _>>()?;
+        let (w, h) = match images.first() {
+            Some(i) => (i.width, i.height),
+            None => return Err(permanent("invalid_input", "the dataset has no images")),
+        };
+        if let Some(odd) = images.iter().find(|i| (i.width, i.height) != (w, h)) {
+            return Err(permanent(
+                "invalid_input",
+                format!(
+                    "images differ in size: {} is {}×{}, {} is {w}×{h}; one camera, one resolution",
+                    odd.name, odd.width, odd.height, images[0].name
+                ),
+            ));
+        }
+        apply_blur_policy(&mut images, &p.blur);
+        let used: Vec<&ImageOutcome> = images.iter().filter(|i| i.excluded.is_none()).collect();
+        if used.len() < caliper_core::calib::MIN_VIEWS {
+            return Err(permanent(
+                "no_solution",
+                format!(
+                    "{} of {} images have a usable {}×{} board; at least {} are needed",
+                    used.len(),
+                    images.len(),
+                    board.cols,
+                    board.rows,
+                    caliper_core::calib::MIN_VIEWS
+                ),
+            ));
+        }
+        let observations: Vec<ViewObservations> = used
+            .iter()
+            .map(|i| {
+                let dense: Vec<Option<[f64; 2]>> = i.points.iter().map(|&c| Some(c)).collect();
+                ViewObservations::from_dense(i.name.clone(), &dense)
+            })
+            .collect();
+        progress.report("solving", 0, 1);
+        let calib = calibrate(&observations, &board, p.model, (w, h), &p.options, progress)?;
+        progress.report("solving", 1, 1);
+        let cov = coverage(&observations, &calib, 16, 12);
+        let artifacts = vec![
+            svg("residuals.svg", residuals_svg(&observations, &calib)),
+            svg("view_rms.svg", view_rms_svg(&calib)),
+            svg("coverage.svg", coverage_svg(&cov, calib.image_size)),
+        ];
+        let detected = images.iter().filter(|i| i.detected).count();
+        let quality = json!({
+            "rms": calib.rms,
+            "rms_all": calib.rms_all,
+            "sigma": calib.sigma,
+            "images": images.len(),
+            "boards_detected": detected,
+            "views_used": calib.views.iter().filter(|v| v.used).count(),
+            "coverage": cov.fraction,
+            "projection_uncertainty_px": calib.projection_uncertainty.iter().map(|u| u.std_major).fold(0.0f64, f64::max),
+        });
+        let parameters = json!({
+            "camera": calib.camera,
+            "image_size": calib.image_size,
+            "board": p.board,
+            "calibration": calib,
+            "coverage": cov,
+            "images": images,
+            "observations": observations,
+        });
+        Ok(JobOutput {
+            parameters,
+            quality,
+            artifacts,
+        })
+    }
+}
+
+fn board_geometry(p: &CameraCalibParams) -> BoardGeometry {
+    BoardGeometry {
+        cols: p.board.cols,
+        rows: p.board.rows,
+        square: p.board.square,
+    }
+}
+
+fn permanent(code: &'static str, message: impl Into<String>) -> JobError {
+    JobError::Permanent {
+        code,
+        message: message.into(),
+    }
+}
+
+fn svg(name: &str, text: String) -> Artifact {
+    Artifact {
+        name: name.into(),
+        media_type: "image/svg+xml".into(),
+        data: text.into_bytes().into(),
+    }
+}
+
+/// Mark frames whose Laplacian variance is below `min_relative_sharpness` × the median of
+/// the frames with a board.
+fn apply_blur_policy(images: &mut [ImageOutcome], policy: &BlurPolicy) {
+    if !policy.exclude {
+        return;
+    }
+    let mut lv: Vec<f64> = images
+        .iter()
+        .filter(|i| i.detected)
+        .map(|i| i.laplacian_variance)
+        .collect();
+    if lv.len() < 3 {
+        return;
+    }
+    lv.sort_by(f64::total_cmp);
+    let median = lv[lv.len() / 2];
+    let cut = policy.min_relative_sharpness * median;
+    for i in images
+        .iter_mut()
+        .filter(|i| i.detected && i.excluded.is_none())
+    {
+        if i.laplacian_variance < cut {
+            i.excluded = Some(format!(
+                "blurred: Laplacian variance {:.1} is below {:.0} % of the set's median {:.1}",
+                i.laplacian_variance,
+                100.0 * policy.min_relative_sharpness,
+                median
+            ));
+        }
+    }
+}
