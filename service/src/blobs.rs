@@ -120,6 +120,42 @@ impl Blobs {
         }
     }
 
+    /// A blocking reader over a blob, for job code running on a blocking thread: large inputs
+    /// (IMU logs of hundreds of MB) are streamed, never loaded whole. Must not be called from
+    /// an async task (it blocks on the runtime `handle` for remote stores).
+    pub fn open_blocking(
+        &self,
+        sha256: &str,
+        handle: &tokio::runtime::Handle,
+    ) -> Result<Box<dyn std::io::Read + Send>, BlobError> {
+        if let Some(root) = &self.local_root {
+            let path = root.join(key(sha256).as_ref());
+            return match std::fs::File::open(path) {
+                Ok(f) => Ok(Box::new(f)),
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    Err(BlobError::NotFound(sha256.into()))
+                }
+                Err(e) => Err(e.into()),
+            };
+        }
+        let store = self.store.clone();
+        let k = key(sha256);
+        let result = handle.block_on(async move { store.get(&k).await });
+        let stream = match result {
+            Ok(r) => r.into_stream(),
+            Err(object_store::Error::NotFound { .. }) => {
+                return Err(BlobError::NotFound(sha256.into()));
+            }
+            Err(e) => return Err(e.into()),
+        };
+        use futures_util::TryStreamExt;
+        let reader = tokio_util::io::StreamReader::new(stream.map_err(std::io::Error::other));
+        Ok(Box::new(tokio_util::io::SyncIoBridge::new_with_handle(
+            reader,
+            handle.clone(),
+        )))
+    }
+
     /// Delete a blob; a missing blob is not an error.
     pub async fn delete(&self, sha256: &str) -> Result<(), BlobError> {
         match self.store.delete(&key(sha256)).await {

@@ -223,6 +223,7 @@ fn run_kind(kind_name: &str, params: Value, common: &CommonArgs) -> Result<Strin
         .iter()
         .map(|(f, p)| (f.sha256.clone(), p.clone()))
         .collect();
+    let by_sha2 = by_sha.clone();
     let files: Vec<DatasetFile> = described.into_iter().map(|(f, _)| f).collect();
     let input = JobInput {
         files: files.clone(),
@@ -232,6 +233,12 @@ fn run_kind(kind_name: &str, params: Value, common: &CommonArgs) -> Result<Strin
                 .get(&f.sha256)
                 .ok_or_else(|| std::io::Error::other("unknown file"))?;
             std::fs::read(p)
+        }),
+        open: Arc::new(move |f| {
+            let p = by_sha2
+                .get(&f.sha256)
+                .ok_or_else(|| std::io::Error::other("unknown file"))?;
+            Ok(Box::new(std::fs::File::open(p)?) as Box<dyn std::io::Read + Send>)
         }),
     };
     let output = kind

@@ -319,89 +319,63 @@ pub fn read_imu_log(
     progress: &dyn Progress,
 ) -> CoreResult<ImuLog> {
     let mut stats = ParseStats::default();
-    let mut buf: Vec<u8> = Vec::with_capacity(BATCH_BYTES + 4096);
-    let mut eof = false;
     let mut line_no: u64 = 0; // lines fully consumed so far
     let mut layout: Option<Layout> = None;
     let mut acc = Accum::default();
     let mut skipping_long_line = false;
-    let mut first_batch = true;
-
-    while !eof {
-        // Fill the batch.
-        let start = buf.len();
-        buf.resize(BATCH_BYTES.max(start + 4096), 0);
-        let mut filled = start;
-        while filled < buf.len() {
-            match reader.read(&mut buf[filled..]) {
-                Ok(0) => {
-                    eof = true;
-                    break;
-                }
-                Ok(n) => filled += n,
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                Err(e) => {
-                    return Err(CoreError::input(format!(
-                        "reading the IMU log failed after line {line_no}: {e}"
-                    )));
-                }
-            }
-        }
-        buf.truncate(filled);
-        stats.bytes += (filled - start) as u64;
-        if first_batch && buf.starts_with(&[0xEF, 0xBB, 0xBF]) {
-            buf.drain(..3);
-        }
-        first_batch = false;
-
-        // Over-long line still being skipped from the previous batch.
+    // Double buffer: the next batch is read on this thread while a scoped thread parses the
+    // current one (with rayon inside), so reading overlaps parsing without asking the reader
+    // to be `Send`.
+    let mut cur = vec![0u8; BATCH_BYTES];
+    let mut next = vec![0u8; BATCH_BYTES];
+    let mut cur_len = 0usize;
+    let mut eof = fill(&mut reader, &mut cur, &mut cur_len, line_no, &mut stats.bytes)?;
+    if cur[..cur_len].starts_with(&[0xEF, 0xBB, 0xBF]) {
+        cur.copy_within(3..cur_len, 0);
+        cur_len -= 3;
+    }
+    loop {
+        let mut start = 0usize;
         if skipping_long_line {
-            match buf.iter().position(|&b| b == b'\n') {
+            match cur[..cur_len].iter().position(|&b| b == b'\n') {
                 Some(p) => {
-                    buf.drain(..=p);
+                    start = p + 1;
                     skipping_long_line = false;
                 }
-                None => {
-                    buf.clear();
-                    continue;
-                }
+                None => start = cur_len,
             }
         }
-
         let end = if eof {
-            buf.len()
+            cur_len
         } else {
-            match buf.iter().rposition(|&b| b == b'\n') {
-                Some(p) => p + 1,
-                None => {
+            match cur[start..cur_len].iter().rposition(|&b| b == b'\n') {
+                Some(p) => start + p + 1,
+                None if start == 0 && cur_len == cur.len() => {
                     // A single line longer than a whole batch: junk, skip to its end.
                     line_no += 1;
                     note(&mut stats.junk_rows, &mut stats.junk_lines_first, line_no);
                     acc.mark_skip();
-                    buf.clear();
                     skipping_long_line = true;
-                    continue;
+                    cur_len
                 }
+                None => start,
             }
         };
 
-        let mut body_start = 0;
+        let mut body_start = start;
         if layout.is_none() {
             // Find the header (first non-blank line) and fix the layout.
-            let mut pos = 0;
+            let mut pos = start;
             while pos < end {
-                let nl = buf[pos..end]
+                let nl = cur[pos..end]
                     .iter()
                     .position(|&b| b == b'\n')
                     .map_or(end, |p| pos + p);
-                let line = trim(&buf[pos..nl]);
+                let line = trim(&cur[pos..nl]);
                 if line.is_empty() {
                     line_no += 1;
                     stats.blank_lines += 1;
                     pos = (nl + 1).min(end);
-                    if nl >= end {
-                        break;
-                    }
                     continue;
                 }
                 let (l, header_consumed) = resolve_layout(line, params, &mut stats)?;
@@ -415,47 +389,46 @@ pub fn read_imu_log(
             }
             body_start = pos;
             acc.first_data_line = line_no + 1;
-            if layout.is_none() {
-                // Only blank lines so far.
-                buf.drain(..end);
-                continue;
-            }
         }
-        let Some(lay) = layout.as_ref() else {
-            continue;
-        };
 
-        // Split the body into pieces at line boundaries and parse them in parallel.
-        let body = &buf[body_start..end];
-        let n_pieces = (rayon::current_num_threads() * 2).clamp(1, 16);
-        let mut bounds = Vec::with_capacity(n_pieces + 1);
-        bounds.push(0usize);
-        for k in 1..n_pieces {
-            let target = body.len() * k / n_pieces;
-            let prev = bounds.last().copied().unwrap_or(0);
-            if target <= prev {
-                continue;
+        // Carry the incomplete last line over, then read the next batch while parsing this one.
+        let tail = cur_len - end.max(body_start);
+        next[..tail].copy_from_slice(&cur[end.max(body_start)..cur_len]);
+        let mut next_len = tail;
+        let mut next_eof = eof;
+        let pieces: Vec<Piece> = match layout.as_ref() {
+            Some(lay) if body_start < end => {
+                let body = &cur[body_start..end];
+                std::thread::scope(|sc| -> CoreResult<Vec<Piece>> {
+                    let h = sc.spawn(|| parse_batch(body, lay));
+                    if !eof {
+                        next_eof = fill(&mut reader, &mut next, &mut next_len, line_no, &mut stats.bytes)?;
+                    }
+                    h.join()
+                        .map_err(|_| CoreError::input(format!("IMU log parser failed after line {line_no}")))
+                })?
             }
-            let cut = body[target..]
-                .iter()
-                .position(|&b| b == b'\n')
-                .map_or(body.len(), |p| target + p + 1);
-            if cut > prev && cut < body.len() {
-                bounds.push(cut);
+            _ => {
+                if !eof {
+                    next_eof = fill(&mut reader, &mut next, &mut next_len, line_no, &mut stats.bytes)?;
+                }
+                Vec::new()
+            }
+        };
+        if let Some(lay) = layout.as_ref() {
+            for p in &pieces {
+                acc.merge(p, line_no, lay, &mut stats);
+                line_no += p.lines;
             }
         }
-        bounds.push(body.len());
-        let pieces: Vec<Piece> = bounds
-            .par_windows(2)
-            .map(|w| parse_piece(&body[w[0]..w[1]], lay))
-            .collect();
-        for p in &pieces {
-            acc.merge(p, line_no, lay, &mut stats);
-            line_no += p.lines;
-        }
-        buf.drain(..end);
         progress.report("parse", stats.bytes, 0);
         progress.check()?;
+        if eof {
+            break;
+        }
+        std::mem::swap(&mut cur, &mut next);
+        cur_len = next_len;
+        eof = next_eof;
     }
     stats.lines = line_no;
 
@@ -466,6 +439,58 @@ pub fn read_imu_log(
         )));
     };
     acc.finish(stats, lay.has_temp)
+}
+
+/// Read until `buf` is full or the reader ends; returns whether it ended.
+fn fill(
+    reader: &mut impl BufRead,
+    buf: &mut [u8],
+    len: &mut usize,
+    line_no: u64,
+    bytes: &mut u64,
+) -> CoreResult<bool> {
+    while *len < buf.len() {
+        match reader.read(&mut buf[*len..]) {
+            Ok(0) => return Ok(true),
+            Ok(n) => {
+                *len += n;
+                *bytes += n as u64;
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => {
+                return Err(CoreError::input(format!(
+                    "reading the IMU log failed after line {line_no}: {e}"
+                )));
+            }
+        }
+    }
+    Ok(false)
+}
+
+/// Split complete lines into pieces at line boundaries and parse them in parallel.
+fn parse_batch(body: &[u8], lay: &Layout) -> Vec<Piece> {
+    let n_pieces = (rayon::current_num_threads() * 2).clamp(1, 16);
+    let mut bounds = Vec::with_capacity(n_pieces + 1);
+    bounds.push(0usize);
+    for k in 1..n_pieces {
+        let target = body.len() * k / n_pieces;
+        let prev = bounds.last().copied().unwrap_or(0);
+        if target <= prev {
+            continue;
+        }
+        let cut = body[target..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(body.len(), |p| target + p + 1);
+        if cut > prev && cut < body.len() {
+            bounds.push(cut);
+        }
+    }
+    bounds.push(body.len());
+    bounds
+        .par_windows(2)
+        .map(|w| parse_piece(&body[w[0]..w[1]], lay))
+        .collect()
 }
 
 /// Trim ASCII whitespace and a trailing `\r`.
@@ -744,6 +769,52 @@ fn parse_piece(text: &[u8], lay: &Layout) -> Piece {
     out
 }
 
+/// Eight ASCII digits at `pos` as a number (SWAR: one 64-bit load, three multiplies), or None
+/// if the 8 bytes are not all digits.
+#[inline]
+fn eight_digits(text: &[u8], pos: usize) -> Option<u64> {
+    let chunk: [u8; 8] = text.get(pos..pos + 8)?.try_into().ok()?;
+    let v = u64::from_le_bytes(chunk);
+    const HI: u64 = 0xF0F0_F0F0_F0F0_F0F0;
+    if (v & HI) | ((v.wrapping_add(0x0606_0606_0606_0606) & HI) >> 4) != 0x3333_3333_3333_3333 {
+        return None;
+    }
+    let v = v - 0x3030_3030_3030_3030;
+    // Pairs, then quads, then the octet (byte 0 is the most significant digit).
+    let v = v.wrapping_mul(10).wrapping_add(v >> 8);
+    let v = ((v & 0x0000_00FF_0000_00FF).wrapping_mul(0x000F_4240_0000_0064))
+        .wrapping_add(((v >> 16) & 0x0000_00FF_0000_00FF).wrapping_mul(0x0000_2710_0000_0001))
+        >> 32;
+    Some(v)
+}
+
+/// Accumulate decimal digits at `pos` into `mant` (wrapping; callers reject more than 19
+/// digits), returning how many were read.
+#[inline]
+fn digits(text: &[u8], pos: &mut usize, mant: &mut u64, nd: &mut u32) -> u32 {
+    let start = *nd;
+    while *nd <= 11 {
+        match eight_digits(text, *pos) {
+            Some(d8) => {
+                *mant = mant.wrapping_mul(100_000_000).wrapping_add(d8);
+                *nd += 8;
+                *pos += 8;
+            }
+            None => break,
+        }
+    }
+    while let Some(&b) = text.get(*pos) {
+        let d = b.wrapping_sub(b'0');
+        if d >= 10 {
+            break;
+        }
+        *mant = mant.wrapping_mul(10).wrapping_add(u64::from(d));
+        *nd += 1;
+        *pos += 1;
+    }
+    *nd - start
+}
+
 /// Single pass over one well-formed line starting at `pos`: plain decimal fields separated by
 /// the delimiter, integer timestamp in the file unit. Returns the row (values scaled, checked
 /// finite) and the start of the next line, or None to let [`parse_line`] handle the line.
@@ -774,15 +845,7 @@ fn fast_line(text: &[u8], mut pos: usize, lay: &Layout, slot_of: &[u8]) -> Optio
             let mut mant: u64 = 0;
             let mut nd = 0u32;
             let mut exp: i32 = 0;
-            while pos < n {
-                let d = text[pos].wrapping_sub(b'0');
-                if d >= 10 {
-                    break;
-                }
-                mant = mant.wrapping_mul(10).wrapping_add(u64::from(d));
-                nd += 1;
-                pos += 1;
-            }
+            digits(text, &mut pos, &mut mant, &mut nd);
             if slot == 0 {
                 // Timestamp: integer in ns only.
                 if nd == 0 || nd > 19 || lay.ts_pow10 != 0 {
@@ -793,16 +856,7 @@ fn fast_line(text: &[u8], mut pos: usize, lay: &Layout, slot_of: &[u8]) -> Optio
             } else {
                 if pos < n && text[pos] == b'.' {
                     pos += 1;
-                    while pos < n {
-                        let d = text[pos].wrapping_sub(b'0');
-                        if d >= 10 {
-                            break;
-                        }
-                        mant = mant.wrapping_mul(10).wrapping_add(u64::from(d));
-                        nd += 1;
-                        exp -= 1;
-                        pos += 1;
-                    }
+                    exp -= digits(text, &mut pos, &mut mant, &mut nd) as i32;
                 }
                 if pos < n && (text[pos] | 0x20) == b'e' {
                     pos += 1;
@@ -1090,21 +1144,21 @@ fn decimal(s: &[u8]) -> Option<(bool, u64, i32, u32)> {
 /// to the standard library parser. Returns None for non-numbers; NaN/inf parse as such.
 #[inline]
 pub(crate) fn parse_f64(s: &[u8]) -> Option<f64> {
-    if let Some((neg, mant, exp, _)) = decimal(s) {
-        if mant < (1u64 << 53) {
-            let m = mant as f64;
-            let v = if mant == 0 {
-                Some(0.0)
-            } else if (0..=22).contains(&exp) {
-                Some(m * POW10[exp as usize])
-            } else if (-22..0).contains(&exp) {
-                Some(m / POW10[(-exp) as usize])
-            } else {
-                None
-            };
-            if let Some(v) = v {
-                return Some(if neg { -v } else { v });
-            }
+    if let Some((neg, mant, exp, _)) = decimal(s)
+        && mant < (1u64 << 53)
+    {
+        let m = mant as f64;
+        let v = if mant == 0 {
+            Some(0.0)
+        } else if (0..=22).contains(&exp) {
+            Some(m * POW10[exp as usize])
+        } else if (-22..0).contains(&exp) {
+            Some(m / POW10[(-exp) as usize])
+        } else {
+            None
+        };
+        if let Some(v) = v {
+            return Some(if neg { -v } else { v });
         }
     }
     std::str::from_utf8(s).ok()?.parse::<f64>().ok()

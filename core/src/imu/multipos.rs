@@ -284,6 +284,9 @@ fn validate(p: &ImuIntrinsicsParams) -> CoreResult<()> {
     Ok(())
 }
 
+/// The winning threshold: multiplier, accelerometer fit, static intervals.
+type Best = (f64, lm::LmResult, Vec<(usize, usize)>);
+
 fn t_acc(p: &[f64]) -> Matrix3<f64> {
     Matrix3::new(1.0, -p[0], p[1], 0.0, 1.0, -p[2], 0.0, 0.0, 1.0)
 }
@@ -408,13 +411,8 @@ pub fn imu_intrinsics_from_log(
 
     // Try every multiplier; the lowest accelerometer cost wins.
     let mut tried = Vec::new();
-    let mut best: Option<(
-        f64,
-        f64,
-        lm::LmResult,
-        Vec<(usize, usize)>,
-        Vec<Vector3<f64>>,
-    )> = None;
+    // (multiplier, accelerometer fit, intervals) of the lowest cost so far.
+    let mut best: Option<Best> = None;
     let n_mult = params.threshold_multipliers.len() as u64;
     for (k, &mult) in params.threshold_multipliers.iter().enumerate() {
         progress.report("static_detect", k as u64, n_mult);
@@ -449,13 +447,13 @@ pub fn imu_intrinsics_from_log(
                 progress,
             )?;
             trial.cost = Some(res.cost);
-            if best.as_ref().is_none_or(|b| res.cost < b.0) {
-                best = Some((res.cost, mult, res, ivs, samples));
+            if best.as_ref().is_none_or(|b| res.cost < b.1.cost) {
+                best = Some((mult, res, ivs));
             }
         }
         tried.push(trial);
     }
-    let Some((_, mult, acc_res, ivs, _samples)) = best else {
+    let Some((mult, acc_res, ivs)) = best else {
         let counts: Vec<String> = tried
             .iter()
             .map(|t| format!("×{}: {}", t.multiplier, t.intervals))

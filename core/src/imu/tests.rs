@@ -88,6 +88,37 @@ fn parses_euroc_and_rate() {
 }
 
 #[test]
+fn fast_number_parsing_matches_std() {
+    let mut rng = Rng::new(1);
+    for _ in 0..20_000 {
+        let v = (rng.normal() * 10f64.powi((rng.uniform() * 12.0) as i32 - 6)) as f32 as f64;
+        for text in [format!("{v}"), format!("{v:.10e}"), format!("{v:.12}"), format!("{}", v.abs() as u64)] {
+            let want: f64 = text.parse().unwrap_or(f64::NAN);
+            let got = super::log::parse_f64(text.as_bytes()).unwrap_or(f64::NAN);
+            assert!(want.to_bits() == got.to_bits() || (want == 0.0 && got == 0.0), "{text}: {got} vs {want}");
+        }
+    }
+    // The single-pass line parser (SWAR digits) against the same values.
+    let mut s = String::from(HEADER);
+    s.push('\n');
+    let mut want = Vec::new();
+    for i in 0..5000i64 {
+        let v: Vec<f64> = (0..6).map(|_| rng.normal() * 10f64.powi((rng.uniform() * 6.0) as i32 - 3)).collect();
+        let _ = writeln!(s, "{},{},{},{},{:.10},{:e},{}", 1_234_567_890_123_456_789 + i * 5_000_000, v[0], v[1], v[2], v[3], v[4], v[5]);
+        want.push(v);
+    }
+    let log = parse(&s).expect("parse");
+    assert_eq!(log.len(), 5000);
+    assert_eq!(log.t0_ns(), 1_234_567_890_123_456_789);
+    for (i, v) in want.iter().enumerate() {
+        for c in 0..6 {
+            let w = if c == 3 { format!("{:.10}", v[c]).parse().unwrap_or(f64::NAN) } else { v[c] };
+            assert!((log.value(c, i) - w).abs() <= 1e-6 * (w - want[0][c]).abs().max(1e-3), "{i} {c}");
+        }
+    }
+}
+
+#[test]
 fn scientific_timestamps_are_exact() {
     let s = format!(
         "{HEADER}\n1.700000000000e+18,0,0,0,0,0,9.8\n1.700000000005e18,1e-3,0,0,0,0,9.8\n\

@@ -21,12 +21,17 @@ use crate::store::{DatasetFile, DatasetKind};
 /// Reads the bytes of a dataset file (from the blob store, or a local path offline).
 pub type FileLoader = Arc<dyn Fn(&DatasetFile) -> std::io::Result<Vec<u8>> + Send + Sync>;
 
+/// Opens a dataset file as a stream, for inputs too large to hold in memory (IMU logs).
+pub type FileOpener =
+    Arc<dyn Fn(&DatasetFile) -> std::io::Result<Box<dyn std::io::Read + Send>> + Send + Sync>;
+
 /// Everything a job kind needs to run.
 pub struct JobInput {
     pub files: Vec<DatasetFile>,
     /// Parameters as normalised by [`JobKind::normalize_params`].
     pub params: Value,
     pub load: FileLoader,
+    pub open: FileOpener,
 }
 
 /// A named output file of a job (plot, image, export).

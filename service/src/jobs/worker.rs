@@ -286,6 +286,7 @@ async fn execute(
     };
     let blobs = state.blobs().clone();
     let handle = tokio::runtime::Handle::current();
+    let (blobs2, handle2) = (blobs.clone(), handle.clone());
     let input = JobInput {
         files: dataset.files.clone(),
         params: job.params.clone(),
@@ -293,6 +294,11 @@ async fn execute(
             handle
                 .block_on(blobs.get(&f.sha256))
                 .map(|b| b.to_vec())
+                .map_err(std::io::Error::other)
+        }),
+        open: Arc::new(move |f| {
+            blobs2
+                .open_blocking(&f.sha256, &handle2)
                 .map_err(std::io::Error::other)
         }),
     };
