@@ -197,3 +197,91 @@ async fn too_few_boards_fail_with_a_clear_reason() {
     assert_eq!(p["field"], "params.board");
     s.stop().await;
 }
+
+/// Views of a 7×5 board through a strong fisheye, placed across the field of view.
+fn fisheye_renders(camera: &Camera) -> Vec<(String, Vec<u8>)> {
+    use caliper_core::camera::CameraModel;
+    let (cols, rows, sq) = (7usize, 5usize, 0.03);
+    let centre = Vector3::new(
+        (cols - 1) as f64 * sq / 2.0,
+        (rows - 1) as f64 * sq / 2.0,
+        0.0,
+    );
+    let spots = [
+        ([320.0, 320.0], [0.0, 0.0, 0.0]),
+        ([200.0, 220.0], [0.3, -0.4, 0.1]),
+        ([450.0, 210.0], [0.3, 0.4, -0.2]),
+        ([190.0, 440.0], [-0.3, -0.4, 0.3]),
+        ([440.0, 450.0], [-0.3, 0.4, 0.0]),
+        ([320.0, 150.0], [0.5, 0.0, 0.2]),
+        ([320.0, 490.0], [-0.5, 0.0, -0.1]),
+        ([150.0, 320.0], [0.0, -0.5, 0.4]),
+        ([490.0, 320.0], [0.1, 0.5, 0.0]),
+    ];
+    spots
+        .iter()
+        .enumerate()
+        .map(|(i, &(px, rot))| {
+            let ray = camera
+                .unproject(&nalgebra::Vector2::new(px[0], px[1]))
+                .expect("ray");
+            let rvec = Vector3::new(rot[0], rot[1], rot[2]);
+            let r = Se3::from_rvec_tvec(&rvec, &Vector3::zeros());
+            let t = ray.normalize() * 0.22 - r.act(&centre);
+            let pose = Se3::from_rvec_tvec(&rvec, &t);
+            let opts = RenderOptions {
+                noise_sigma: 1.0,
+                seed: 100 + i as u64,
+                blur_sigma: 0.5,
+                ..RenderOptions::default()
+            };
+            let view = render_chessboard(camera, &pose, (cols, rows, sq), (640, 640), &opts)
+                .expect("render");
+            assert!(view.all_visible(), "fisheye view {i} leaves the image");
+            let img = image::GrayImage::from_raw(640, 640, view.image.data).expect("image");
+            (format!("fish{i:02}.png"), png(&img))
+        })
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn fisheye_views_calibrate_without_a_starting_guess() {
+    use caliper_core::camera::KannalaBrandt;
+    let truth = [200.0, 200.0, 319.5, 319.5, 0.02, -0.01, 0.002, 0.0];
+    let camera: Camera = KannalaBrandt::from_slice(&truth).expect("camera").into();
+    let s = start().await;
+    let files = fisheye_renders(&camera);
+    let ds = s.dataset(as_refs(&files)).await;
+    let id = s
+        .job(json!({"kind": "camera_calibration", "dataset": ds,
+                    "params": {"board": {"cols": 7, "rows": 5, "square": 0.03}, "model": "kannala_brandt"}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    let cam = &doc["parameters"]["camera"];
+    assert_eq!(cam["model"], "kannala_brandt");
+    for (name, t) in [
+        ("fx", truth[0]),
+        ("fy", truth[1]),
+        ("cx", truth[2]),
+        ("cy", truth[3]),
+    ] {
+        let v = cam[name].as_f64().unwrap_or(f64::NAN);
+        assert!((v - t).abs() < 0.003 * t, "{name} = {v}, truth {t}: {cam}");
+    }
+    assert_eq!(
+        doc["quality"]["views_used"], 9,
+        "every view kept: {}",
+        doc["quality"]
+    );
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{id}/result?format=opencv-yaml")))
+        .send()
+        .await
+        .unwrap();
+    let yaml = r.text().await.unwrap();
+    assert!(yaml.contains("fisheye_model: 1"), "{yaml}");
+    s.stop().await;
+}
