@@ -5,7 +5,9 @@
 //!
 //! `cargo bench -p caliper-core --bench detect_vs_opencv`
 //! Env: `CALIPER_SHARED_DATA` (default `<workspace>/../shared/data`, then `/work/shared/data`),
-//! `CALIPER_BENCH_RUNS` (default 5, median reported), `RAYON_NUM_THREADS`.
+//! `CALIPER_BENCH_RUNS` (default 5, median reported), `RAYON_NUM_THREADS`,
+//! `CALIPER_BENCH_SETS` (only the sets whose label contains one of these comma-separated
+//! words), `CALIPER_BENCH_NO_PEER=1` (ours only, e.g. under a profiler).
 //!
 //! Ours: decode and detect run with rayon across the images (the caller's parallelism; one
 //! image is single-threaded), then `calibrate` (pinhole k1,k2,p1,p2,k3 or Kannala-Brandt,
@@ -347,13 +349,24 @@ fn main() {
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     let mut notes = Vec::new();
+    let only: Vec<String> = std::env::var("CALIPER_BENCH_SETS")
+        .map(|v| v.split(',').map(|w| w.trim().to_string()).collect())
+        .unwrap_or_default();
+    let no_peer = std::env::var_os("CALIPER_BENCH_NO_PEER").is_some_and(|v| v != "0");
     for set in &sets {
+        if !only.is_empty() && !only.iter().any(|w| set.label.contains(w.as_str())) {
+            continue;
+        }
         if set.files.is_empty() {
             println!("| {} | no images | | | | | | | | | | |", set.label);
             continue;
         }
         let ours = run_ours(set, runs);
-        let peer = run_peer(set, &data, runs);
+        let peer = if no_peer {
+            Err("not run (CALIPER_BENCH_NO_PEER)".to_string())
+        } else {
+            run_peer(set, &data, runs)
+        };
         let peer = match peer {
             Ok(p) => p,
             Err(e) => {

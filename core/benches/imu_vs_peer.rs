@@ -103,6 +103,15 @@ fn main() {
     let open = || BufReader::with_capacity(1 << 20, File::open(&csv).expect("open the CSV"));
 
     // Whole pipeline (what the service runs), then the two stages separately.
+    if std::env::var("IMU_PARSE_ONLY").is_ok() {
+        for _ in 0..runs {
+            let t0 = Instant::now();
+            let log = read_imu_log(open(), &ImuCsvParams::default(), &NoProgress).expect("parse");
+            let dt = t0.elapsed().as_secs_f64();
+            println!("parse {:.1} ms, {:.0} MB/s, {} samples", dt * 1e3, size_mb / dt, log.len());
+        }
+        return;
+    }
     // The first thing this process does is one whole imu_noise: its VmHWM is our peak RSS.
     let mut total = Vec::new();
     let mut report = None;

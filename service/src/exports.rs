@@ -24,6 +24,9 @@ pub fn render(doc: &Value, format: &str) -> Result<Rendered, ApiError> {
         )
         .with_field("format")
     };
+    if schema == "caliper.imu_noise/v1" && format == "kalibr-yaml" {
+        return kalibr_imu_yaml(doc);
+    }
     if schema != "caliper.camera/v1" {
         return Err(unsupported());
     }
@@ -63,5 +66,49 @@ pub fn render(doc: &Value, format: &str) -> Result<Rendered, ApiError> {
     Ok(Rendered {
         body,
         media_type: fmt.media_type(),
+    })
+}
+
+/// Kalibr `imu.yaml` (field list: `ImuParameters` in Kalibr's `ConfigReader.py`) from an
+/// `imu_noise` document: the worst axis of each sensor. A random walk the log could not
+/// determine is written as its upper bound, with a comment saying so; without even a bound
+/// the export is refused rather than inventing a number.
+fn kalibr_imu_yaml(doc: &Value) -> Result<Rendered, ApiError> {
+    let k = &doc["parameters"]["kalibr"];
+    let mut out = String::from("# Kalibr imu.yaml written by Caliper from an imu_noise document\n");
+    for (key, bound) in [
+        ("accelerometer_noise_density", None),
+        (
+            "accelerometer_random_walk",
+            Some("accelerometer_random_walk_upper_bound"),
+        ),
+        ("gyroscope_noise_density", None),
+        (
+            "gyroscope_random_walk",
+            Some("gyroscope_random_walk_upper_bound"),
+        ),
+    ] {
+        match (k[key].as_f64(), bound.and_then(|b| k[b].as_f64())) {
+            (Some(v), _) => out.push_str(&format!("{key}: {v:e}\n")),
+            (None, Some(b)) => out.push_str(&format!(
+                "{key}: {b:e}  # upper bound: the log is too short to determine it\n"
+            )),
+            (None, None) => {
+                return Err(ApiError::new(
+                    "unsupported_format",
+                    format!(
+                        "{key} could not be determined from this log; no Kalibr file can be written"
+                    ),
+                )
+                .with_field("format"));
+            }
+        }
+    }
+    let rate = k["update_rate"].as_f64().unwrap_or(0.0);
+    out.push_str("rostopic: /imu0\n");
+    out.push_str(&format!("update_rate: {rate}\n"));
+    Ok(Rendered {
+        body: out,
+        media_type: "application/yaml",
     })
 }

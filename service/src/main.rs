@@ -40,15 +40,9 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
-        Command::Openapi => {
-            print!("{}", caliper_service::openapi_json());
-            ExitCode::SUCCESS
-        }
+        Command::Openapi => emit(&caliper_service::openapi_json()),
         Command::Run { kind } => match offline::run(kind) {
-            Ok(doc) => {
-                println!("{doc}");
-                ExitCode::SUCCESS
-            }
+            Ok(doc) => emit(&format!("{doc}\n")),
             Err(e) => {
                 eprintln!("caliper: {e}");
                 ExitCode::from(2)
@@ -58,6 +52,20 @@ fn main() -> ExitCode {
             config,
             shutdown_grace_secs,
         } => serve(config, Duration::from_secs(shutdown_grace_secs)),
+    }
+}
+
+/// Write to stdout; a closed pipe (`caliper run … | head`) is not an error worth a panic.
+fn emit(text: &str) -> ExitCode {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|_| out.flush()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("caliper: cannot write output: {e}");
+            ExitCode::FAILURE
+        }
     }
 }
 

@@ -17,6 +17,25 @@ pub enum RunCommand {
     BlurScore(BlurScoreArgs),
     /// Calibrate a camera from chessboard images.
     CameraCalibration(CameraCalibrationArgs),
+    /// Allan deviation and noise model of a static IMU log (CSV or .csv.gz).
+    ImuNoise(ImuArgs),
+    /// Multi-position accelerometer and gyroscope calibration of an IMU log.
+    ImuIntrinsics(ImuArgs),
+    /// Bias against temperature of an IMU log with a temperature column.
+    ImuThermal(ImuArgs),
+}
+
+/// Flags of the `imu-*` commands.
+#[derive(Debug, Args)]
+pub struct ImuArgs {
+    /// Parameters as JSON (see `GET /v1/job-kinds` for the schema), e.g. '{"rate_hz": 200}'.
+    #[arg(long)]
+    pub params: Option<String>,
+    /// Print this export instead of the document (`imu-noise`: kalibr-yaml).
+    #[arg(long)]
+    pub export: Option<String>,
+    #[command(flatten)]
+    pub common: CommonArgs,
 }
 
 /// Flags of `caliper run camera-calibration`.
@@ -165,6 +184,9 @@ pub fn run(cmd: RunCommand) -> Result<String, RunError> {
             }
             run_kind("blur_score", Value::Object(params), &a.common)
         }
+        RunCommand::ImuNoise(a) => run_imu("imu_noise", &a),
+        RunCommand::ImuIntrinsics(a) => run_imu("imu_intrinsics", &a),
+        RunCommand::ImuThermal(a) => run_imu("imu_thermal", &a),
         RunCommand::CameraCalibration(a) => {
             let (cols, rows) = a
                 .board
@@ -204,6 +226,62 @@ pub fn run(cmd: RunCommand) -> Result<String, RunError> {
     }
 }
 
+fn run_imu(kind: &str, a: &ImuArgs) -> Result<String, RunError> {
+    let params = match &a.params {
+        Some(p) => serde_json::from_str(p)
+            .map_err(|e| RunError::Input(format!("--params is not JSON: {e}")))?,
+        None => json!({}),
+    };
+    let doc = run_kind(kind, params, &a.common)?;
+    match &a.export {
+        None => Ok(doc),
+        Some(f) => {
+            let v: Value = serde_json::from_str(&doc).map_err(|e| RunError::Job(e.to_string()))?;
+            crate::exports::render(&v, f)
+                .map(|r| r.body)
+                .map_err(|e| RunError::Input(e.detail.unwrap_or_default()))
+        }
+    }
+}
+
+/// Describe one log file as a dataset would (hash, size, media type from content).
+fn log_file(paths: &[(PathBuf, bool)]) -> Result<Vec<(DatasetFile, PathBuf)>, RunError> {
+    let [(p, _)] = paths else {
+        return Err(RunError::Input(format!(
+            "an IMU job reads exactly one log, got {} files",
+            paths.len()
+        )));
+    };
+    let mut f = std::fs::File::open(p)?;
+    let mut head = [0u8; 64];
+    let n = std::io::Read::read(&mut f, &mut head)?;
+    let sniffed = crate::ingest::sniff::sniff(&head[..n]);
+    let gzip = sniffed == crate::ingest::sniff::Sniffed::Gzip;
+    if !gzip && sniffed != crate::ingest::sniff::Sniffed::Text {
+        return Err(RunError::Input(format!(
+            "{} is not a CSV or gzip file",
+            p.display()
+        )));
+    }
+    // Hash as a stream: logs can be hundreds of MB.
+    let mut hasher = <sha2::Sha256 as sha2::Digest>::new();
+    let mut file = std::fs::File::open(p)?;
+    let size = std::io::copy(&mut file, &mut hasher)?;
+    Ok(vec![(
+        DatasetFile {
+            name: p
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            sha256: hex::encode(sha2::Digest::finalize(hasher)),
+            size,
+            media_type: sniffed.media_type().to_string(),
+            image: None,
+        },
+        p.clone(),
+    )])
+}
+
 fn run_kind(kind_name: &str, params: Value, common: &CommonArgs) -> Result<String, RunError> {
     let kind: &dyn JobKind =
         find_kind(kind_name).ok_or_else(|| RunError::Job(format!("unknown kind {kind_name}")))?;
@@ -215,7 +293,10 @@ fn run_kind(kind_name: &str, params: Value, common: &CommonArgs) -> Result<Strin
         ))
     })?;
     let paths = expand(&common.inputs)?;
-    let described = image_files(&paths)?;
+    let described = match kind.dataset_kind() {
+        crate::store::DatasetKind::Images => image_files(&paths)?,
+        _ => log_file(&paths)?,
+    };
     if described.is_empty() {
         return Err(RunError::Input("no images among the inputs".into()));
     }

@@ -101,7 +101,7 @@ async fn sixteen_bit_tiff_imu_log_and_video_are_accepted() {
     s.stop().await;
 }
 
-fn flate2_gzip(data: &[u8]) -> Vec<u8> {
+pub fn flate2_gzip(data: &[u8]) -> Vec<u8> {
     // A stored (uncompressed) gzip member, written by hand to avoid a test dependency.
     let mut out = vec![0x1f, 0x8b, 8, 0, 0, 0, 0, 0, 0, 255];
     let mut rest = data;

@@ -8,6 +8,7 @@ mod common;
 mod datasets;
 mod documents;
 mod errors;
+mod imu;
 mod jobs;
 mod offline;
 mod openapi;

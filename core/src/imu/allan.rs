@@ -36,8 +36,8 @@ pub const FLICKER_FACTOR: f64 = 0.664_282_473_934_844_4;
 /// octave estimates (treating them as independent would count each datum about twice).
 const CORRELATION_INFLATION: f64 = std::f64::consts::SQRT_2;
 
-/// Block length (samples) of the multi-τ pass: 24 segments of 8 KiB fit in L2.
-const BLOCK: usize = 1024;
+/// Block length (samples) of the multi-τ pass and of the f32 delta storage of x.
+const BLOCK: usize = 256;
 
 /// Parameters of [`imu_noise`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -303,7 +303,7 @@ pub fn imu_noise_from_log(
     let z = normal_quantile(0.5 + 0.5 * params.confidence);
 
     progress.report("allan", 0, 6);
-    let mut x = Vec::new();
+    let mut x = PhaseBuffer::default();
     let mut sums: Vec<Vec<f64>> = Vec::with_capacity(6);
     for c in 0..6 {
         sums.push(oavar_sums(log.channel_offsets(c), &ms, &mut x, progress)?);
@@ -441,53 +441,96 @@ pub fn cluster_sizes(n_samples: usize, per_octave: u32) -> Vec<usize> {
     ms
 }
 
+/// Compact form of the cumulative sum x of one axis: x_i = heads[i / BLOCK] + deltas[i], the
+/// heads exact in f64, the deltas (|x_i − x_head| ≲ √BLOCK·σ for a static log) in f32. Rounding
+/// a delta costs ~6·10⁻⁸ of its size, i.e. ~10⁻⁶ σ — far below what the estimator resolves —
+/// and halves both the buffer and the memory traffic of the long-τ passes, which read ~2 log₂ N
+/// streams of x and are bandwidth-bound.
+#[derive(Default)]
+pub(crate) struct PhaseBuffer {
+    heads: Vec<f64>,
+    deltas: Vec<f32>,
+}
+
 /// Σ (x_{k+2m} − 2x_{k+m} + x_k)² for every m in `ms`, x the mean-removed cumulative sum of
-/// `y` (offsets; a constant cancels), built in `x` (reused across axes so only one f64 copy of
-/// an axis is ever alive). The blocked pass over x is split in index ranges across threads.
+/// `y` (offsets; a constant cancels) kept in `buf` (reused across axes). The pass over x is
+/// blocked (all m per block, so the short-m windows stay in cache) and split in index ranges
+/// across threads. For m a multiple of the block length the heads of the three terms combine
+/// into one constant per block, so the inner loop reads only f32 deltas.
 pub(crate) fn oavar_sums(
     y: &[f32],
     ms: &[usize],
-    x: &mut Vec<f64>,
+    buf: &mut PhaseBuffer,
     progress: &dyn Progress,
 ) -> CoreResult<Vec<f64>> {
     let n = y.len();
+    let len = n + 1;
     let mean = y.iter().map(|&v| f64::from(v)).sum::<f64>() / n.max(1) as f64;
-    x.clear();
-    x.reserve(n + 1);
-    x.push(0.0f64);
+    buf.heads.clear();
+    buf.deltas.clear();
+    buf.heads.reserve(len.div_ceil(BLOCK));
+    buf.deltas.reserve(len);
     let mut s = 0.0f64;
-    for &v in y {
-        s += f64::from(v) - mean;
-        x.push(s);
+    let mut head = 0.0f64;
+    for i in 0..len {
+        if i % BLOCK == 0 {
+            head = s;
+            buf.heads.push(head);
+        }
+        buf.deltas.push((s - head) as f32);
+        if i < n {
+            s += f64::from(y[i]) - mean;
+        }
     }
-    let x: &[f64] = x;
-    let len = x.len();
-    let longest = ms
-        .iter()
-        .map(|&m| len.saturating_sub(2 * m))
-        .max()
-        .unwrap_or(0);
+    let (heads, d) = (&buf.heads[..], &buf.deltas[..]);
+    let longest = ms.iter().map(|&m| len.saturating_sub(2 * m)).max().unwrap_or(0);
     let n_blocks = longest.div_ceil(BLOCK);
-    let parts = (rayon::current_num_threads() * 4)
-        .clamp(1, 64)
-        .min(n_blocks.max(1));
+    let parts = (rayon::current_num_threads() * 4).clamp(1, 64).min(n_blocks.max(1));
     let per = n_blocks.div_ceil(parts.max(1)).max(1);
+    let mut scratch_len = 0;
+    for &m in ms {
+        if m < BLOCK {
+            scratch_len = scratch_len.max(BLOCK + 2 * m);
+        }
+    }
+    let x_at = |j: usize| heads[j / BLOCK] + f64::from(d[j]);
     let partial: Vec<Vec<f64>> = (0..parts)
         .into_par_iter()
         .map(|p| {
             let mut sums = vec![0.0f64; ms.len()];
+            let mut xs = vec![0.0f64; scratch_len];
             let (b0, b1) = (p * per, ((p + 1) * per).min(n_blocks));
             for blk in b0..b1 {
                 let b = blk * BLOCK;
+                // Exact f64 x over the window the unaligned m need.
+                let w_end = (b + scratch_len).min(len);
+                for (k, v) in xs[..w_end - b].iter_mut().enumerate() {
+                    *v = x_at(b + k);
+                }
                 for (k, &m) in ms.iter().enumerate() {
                     let n_terms = len.saturating_sub(2 * m);
                     if b >= n_terms {
                         continue;
                     }
                     let e = (b + BLOCK).min(n_terms);
-                    sums[k] += second_diff_sq(&x[b..e], &x[b + m..e + m], &x[b + 2 * m..e + 2 * m]);
+                    let cnt = e - b;
+                    sums[k] += if m < BLOCK {
+                        second_diff_sq(&xs[..cnt], &xs[m..m + cnt], &xs[2 * m..2 * m + cnt])
+                    } else if m % BLOCK == 0 {
+                        let q = m / BLOCK;
+                        let h = heads[blk + 2 * q] - 2.0 * heads[blk + q] + heads[blk];
+                        second_diff_sq_f32(h, &d[b..e], &d[b + m..e + m], &d[b + 2 * m..e + 2 * m])
+                    } else {
+                        // Dense (non-octave) long m: reconstruct each term.
+                        (b..e)
+                            .map(|i| {
+                                let v = x_at(i + 2 * m) - 2.0 * x_at(i + m) + x_at(i);
+                                v * v
+                            })
+                            .sum()
+                    };
                 }
-                if blk % 512 == 0 {
+                if blk % 1024 == 0 {
                     progress.check()?;
                 }
             }
@@ -501,6 +544,29 @@ pub(crate) fn oavar_sums(
         }
     }
     Ok(sums)
+}
+
+/// Σ (h + c − 2b + a)² over f32 deltas, in f64, four accumulators.
+#[inline]
+fn second_diff_sq_f32(h: f64, a: &[f32], b: &[f32], c: &[f32]) -> f64 {
+    let n = a.len().min(b.len()).min(c.len());
+    let (a, b, c) = (&a[..n], &b[..n], &c[..n]);
+    let mut acc = [0.0f64; 4];
+    let n4 = n / 4 * 4;
+    let mut i = 0;
+    while i < n4 {
+        for j in 0..4 {
+            let e = h + (f64::from(c[i + j]) - 2.0 * f64::from(b[i + j]) + f64::from(a[i + j]));
+            acc[j] += e * e;
+        }
+        i += 4;
+    }
+    let mut tail = 0.0;
+    for k in n4..n {
+        let e = h + (f64::from(c[k]) - 2.0 * f64::from(b[k]) + f64::from(a[k]));
+        tail += e * e;
+    }
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
 }
 
 /// Σ (c − 2b + a)², four independent accumulators so the loop vectorises.

@@ -349,7 +349,7 @@ fn random_walk_is_recovered_from_a_long_series() {
         })
         .collect();
     let ms = cluster_sizes(n, 1);
-    let mut x = Vec::new();
+    let mut x = super::allan::PhaseBuffer::default();
     let sums = oavar_sums(&y, &ms, &mut x, &NoProgress).expect("sums");
     let mut curve: Vec<_> = ms
         .iter()
@@ -382,6 +382,35 @@ fn random_walk_is_recovered_from_a_long_series() {
             .filter(|p| p.fitted)
             .all(|p| p.ci_low.is_some_and(|l| l < p.adev))
     );
+}
+
+#[test]
+fn blocked_sums_match_the_direct_formula() {
+    let mut rng = Rng::new(8);
+    let mut rw = 0.0;
+    let y: Vec<f32> = (0..100_003)
+        .map(|_| {
+            rw += 0.01 * rng.normal();
+            (rng.normal() + rw + 3.0) as f32
+        })
+        .collect();
+    for per in [1, 3] {
+        let ms = cluster_sizes(y.len(), per);
+        let mut buf = super::allan::PhaseBuffer::default();
+        let got = oavar_sums(&y, &ms, &mut buf, &NoProgress).expect("sums");
+        let mean = y.iter().map(|&v| f64::from(v)).sum::<f64>() / y.len() as f64;
+        let mut x = vec![0.0f64];
+        for &v in &y {
+            let l = x[x.len() - 1];
+            x.push(l + f64::from(v) - mean);
+        }
+        for (k, &m) in ms.iter().enumerate() {
+            let want: f64 = (0..x.len() - 2 * m)
+                .map(|i| (x[i + 2 * m] - 2.0 * x[i + m] + x[i]).powi(2))
+                .sum();
+            assert!((got[k] / want - 1.0).abs() < 1e-6, "m {m}: {} vs {want}", got[k]);
+        }
+    }
 }
 
 // ------------------------------------------------------------------ multi-position

@@ -46,8 +46,9 @@ pub struct CreateJobRequest {
     pub kind: String,
     /// Dataset id.
     pub dataset: Uuid,
-    /// Kind-specific parameters; omitted fields take their defaults. `blur_score`: the
-    /// `BlurParams` schema; `camera_calibration`: `CameraCalibParams`.
+    /// Kind-specific parameters; omitted fields take their defaults. Schemas: `blur_score`
+    /// `BlurParams`, `camera_calibration` `CameraCalibParams`, `imu_noise` `ImuNoiseParams`,
+    /// `imu_intrinsics` `ImuIntrinsicsParams`, `imu_thermal` `ImuThermalParams`.
     #[serde(default = "empty_object")]
     #[schema(value_type = Object)]
     pub params: Value,

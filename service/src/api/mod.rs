@@ -40,7 +40,10 @@ use crate::state::AppState;
     components(schemas(
         Problem,
         caliper_core::blur::BlurParams,
-        crate::jobs::camera_calibration::CameraCalibParams
+        crate::jobs::camera_calibration::CameraCalibParams,
+        caliper_core::imu::ImuNoiseParams,
+        caliper_core::imu::ImuIntrinsicsParams,
+        caliper_core::imu::ImuThermalParams
     )),
     modifiers(&ProblemCodes)
 )]

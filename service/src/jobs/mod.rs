@@ -7,6 +7,7 @@
 pub mod blur_score;
 pub mod camera_calibration;
 pub mod document;
+pub mod imu;
 pub mod worker;
 
 use std::sync::Arc;
@@ -104,9 +105,12 @@ pub trait JobKind: Send + Sync + 'static {
 
 /// Every job kind this build knows.
 pub fn kinds() -> &'static [&'static dyn JobKind] {
-    static KINDS: [&dyn JobKind; 2] = [
+    static KINDS: [&dyn JobKind; 5] = [
         &blur_score::BlurScore,
         &camera_calibration::CameraCalibration,
+        &imu::ImuNoise,
+        &imu::ImuIntrinsics,
+        &imu::ImuThermal,
     ];
     &KINDS
 }

@@ -1,0 +1,179 @@
+//! The IMU job kinds: `imu_noise` (Allan deviation), `imu_intrinsics` (multi-position scale,
+//! misalignment and bias) and `imu_thermal` (bias vs temperature). Each reads the dataset's one
+//! log as a stream (gzip decompressed on the fly), so memory stays bounded for logs of
+//! hundreds of MB; the science is in `caliper_core::imu`.
+
+use std::io::{BufRead, BufReader, Read};
+
+use caliper_core::Progress;
+use caliper_core::imu::{
+    ImuIntrinsicsParams, ImuNoiseParams, ImuThermalParams, allan_svg, imu_intrinsics, imu_noise,
+    imu_thermal, thermal_svg,
+};
+use serde_json::{Value, json};
+
+use super::{Artifact, JobError, JobInput, JobKind, JobOutput, parse_params};
+use crate::error::ApiError;
+use crate::store::DatasetKind;
+
+/// Open the dataset's log for streaming, decompressing gzip.
+fn open_log(input: &JobInput) -> Result<Box<dyn BufRead>, JobError> {
+    let f = input.files.first().ok_or_else(|| JobError::Permanent {
+        code: "invalid_input",
+        message: "the dataset has no file".into(),
+    })?;
+    let raw = (input.open)(f)
+        .map_err(|e| JobError::Transient(format!("storage: cannot open {}: {e}", f.name)))?;
+    let reader: Box<dyn Read> = if f.media_type == "application/gzip" {
+        Box::new(flate2::read::MultiGzDecoder::new(raw))
+    } else {
+        Box::new(raw)
+    };
+    Ok(Box::new(BufReader::with_capacity(1 << 20, reader)))
+}
+
+fn to_value<T: serde::Serialize>(v: &T) -> Result<Value, JobError> {
+    serde_json::to_value(v).map_err(|e| JobError::Permanent {
+        code: "internal_error",
+        message: e.to_string(),
+    })
+}
+
+fn from_params<T: serde::de::DeserializeOwned>(p: &Value) -> Result<T, JobError> {
+    serde_json::from_value(p.clone()).map_err(|e| JobError::Permanent {
+        code: "invalid_param",
+        message: e.to_string(),
+    })
+}
+
+fn svg(name: &str, text: String) -> Artifact {
+    Artifact {
+        name: name.into(),
+        media_type: "image/svg+xml".into(),
+        data: text.into_bytes().into(),
+    }
+}
+
+fn schema_of<T: utoipa::PartialSchema>() -> Value {
+    serde_json::to_value(T::schema()).unwrap_or(Value::Null)
+}
+
+/// `imu_noise`: Allan deviation and the noise model of a static log.
+pub struct ImuNoise;
+
+impl JobKind for ImuNoise {
+    fn name(&self) -> &'static str {
+        "imu_noise"
+    }
+    fn schema(&self) -> &'static str {
+        "caliper.imu_noise/v1"
+    }
+    fn dataset_kind(&self) -> DatasetKind {
+        DatasetKind::ImuLog
+    }
+    fn description(&self) -> &'static str {
+        "Allan deviation of a static IMU log: noise density N, bias instability B and random walk K per axis, fitted by weighted NNLS, with Kalibr imu.yaml values."
+    }
+    fn params_schema(&self) -> Value {
+        schema_of::<ImuNoiseParams>()
+    }
+    fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
+        let p: ImuNoiseParams = parse_params(params)?;
+        serde_json::to_value(&p).map_err(ApiError::internal)
+    }
+    fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
+        let p: ImuNoiseParams = from_params(&input.params)?;
+        let report = imu_noise(open_log(input)?, &p, progress)?;
+        let quality = json!({
+            "rate_hz": report.rate_hz,
+            "duration_s": report.duration_s,
+            "samples": report.samples,
+            "kalibr": report.kalibr,
+            "warnings": report.warnings.len(),
+        });
+        Ok(JobOutput {
+            parameters: to_value(&report)?,
+            quality,
+            artifacts: vec![svg("allan.svg", allan_svg(&report))],
+        })
+    }
+}
+
+/// `imu_intrinsics`: multi-position accelerometer and gyroscope calibration.
+pub struct ImuIntrinsics;
+
+impl JobKind for ImuIntrinsics {
+    fn name(&self) -> &'static str {
+        "imu_intrinsics"
+    }
+    fn schema(&self) -> &'static str {
+        "caliper.imu_intrinsics/v1"
+    }
+    fn dataset_kind(&self) -> DatasetKind {
+        DatasetKind::ImuLog
+    }
+    fn description(&self) -> &'static str {
+        "Multi-position calibration (Tedaldi et al. 2014): accelerometer and gyroscope scale, misalignment and bias from static poses."
+    }
+    fn params_schema(&self) -> Value {
+        schema_of::<ImuIntrinsicsParams>()
+    }
+    fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
+        let p: ImuIntrinsicsParams = parse_params(params)?;
+        serde_json::to_value(&p).map_err(ApiError::internal)
+    }
+    fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
+        let p: ImuIntrinsicsParams = from_params(&input.params)?;
+        let report = imu_intrinsics(open_log(input)?, &p, progress)?;
+        let quality = json!({
+            "usable_poses": report.usable_poses,
+            "rate_hz": report.rate_hz,
+            "duration_s": report.duration_s,
+            "warnings": report.warnings.len(),
+        });
+        Ok(JobOutput {
+            parameters: to_value(&report)?,
+            quality,
+            artifacts: vec![],
+        })
+    }
+}
+
+/// `imu_thermal`: bias against temperature.
+pub struct ImuThermal;
+
+impl JobKind for ImuThermal {
+    fn name(&self) -> &'static str {
+        "imu_thermal"
+    }
+    fn schema(&self) -> &'static str {
+        "caliper.imu_thermal/v1"
+    }
+    fn dataset_kind(&self) -> DatasetKind {
+        DatasetKind::ImuLog
+    }
+    fn description(&self) -> &'static str {
+        "Per-axis bias as a polynomial in (T − T_ref) over the recorded temperature range (PX4 convention), with residuals."
+    }
+    fn params_schema(&self) -> Value {
+        schema_of::<ImuThermalParams>()
+    }
+    fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
+        let p: ImuThermalParams = parse_params(params)?;
+        serde_json::to_value(&p).map_err(ApiError::internal)
+    }
+    fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
+        let p: ImuThermalParams = from_params(&input.params)?;
+        let report = imu_thermal(open_log(input)?, &p, progress)?;
+        let quality = json!({
+            "degree": report.degree,
+            "valid_range_c": report.valid_range_c,
+            "warnings": report.warnings.len(),
+        });
+        Ok(JobOutput {
+            parameters: to_value(&report)?,
+            quality,
+            artifacts: vec![svg("thermal.svg", thermal_svg(&report))],
+        })
+    }
+}
