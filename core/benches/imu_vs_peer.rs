@@ -108,7 +108,12 @@ fn main() {
             let t0 = Instant::now();
             let log = read_imu_log(open(), &ImuCsvParams::default(), &NoProgress).expect("parse");
             let dt = t0.elapsed().as_secs_f64();
-            println!("parse {:.1} ms, {:.0} MB/s, {} samples", dt * 1e3, size_mb / dt, log.len());
+            println!(
+                "parse {:.1} ms, {:.0} MB/s, {} samples",
+                dt * 1e3,
+                size_mb / dt,
+                log.len()
+            );
         }
         return;
     }

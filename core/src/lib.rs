@@ -5,6 +5,7 @@
 pub mod blur;
 pub mod calib;
 pub mod camera;
+pub mod deconv;
 pub mod error;
 pub mod export;
 pub mod imu;

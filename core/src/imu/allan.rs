@@ -8,12 +8,13 @@
 //! σ²(τ) = Σ_{k=0}^{n−1} (x_{k+2m} − 2x_{k+m} + x_k)² / (2 m² n),  n = N + 1 − 2m,
 //!
 //! which is what `allantools.oadev` computes. Removing the mean before the cumulative sum changes
-//! nothing mathematically (a constant cancels in the second difference) but keeps |x| small, so
-//! the f64 differences stay exact to ~10⁻¹⁶ relative even at 4 M samples.
+//! nothing mathematically (a constant cancels in the second difference) but keeps |x| small.
+//! x is kept as exact f64 values every 256 samples plus f32 offsets from them ([`PhaseBuffer`]):
+//! the rounding is ~10⁻⁶ of the white-noise σ, far below the estimator's resolution, and it
+//! halves the buffer and the memory traffic.
 //!
-//! Cost: one pass over x per τ, done for all τ at once in cache-sized blocks: the segments
-//! x[b + 2^k ..] of one block serve τ = 2^k (as the 2m term) and τ = 2^{k+1} (as the m term),
-//! so memory traffic is ~(K + 2) passes instead of 3K for K octaves.
+//! Cost: O(N) per τ, done for all τ at once in cache-sized blocks (the short-τ windows stay in
+//! cache; the long-τ terms stream through memory once per block row), split across threads.
 //!
 //! Noise model fitted to the AVAR (white noise N, flicker/bias instability B, random walk K):
 //! σ²(τ) = N²/τ + (0.6643·B)² + K²·τ/3, 0.6643 = √(2 ln 2 / π). The fit is the one of the peer
@@ -465,27 +466,59 @@ pub(crate) fn oavar_sums(
 ) -> CoreResult<Vec<f64>> {
     let n = y.len();
     let len = n + 1;
-    let mean = y.iter().map(|&v| f64::from(v)).sum::<f64>() / n.max(1) as f64;
+    // Mean and prefix sums in parallel chunks (chunk = whole blocks): chunk totals, their
+    // running offsets, then each chunk fills its heads and deltas.
+    let chunk_blocks = (len.div_ceil(BLOCK) / (rayon::current_num_threads() * 4).max(1)).max(16);
+    let chunk = chunk_blocks * BLOCK;
+    let mean = y
+        .par_chunks(chunk)
+        .map(|c| c.iter().map(|&v| f64::from(v)).sum::<f64>())
+        .sum::<f64>()
+        / n.max(1) as f64;
     buf.heads.clear();
+    buf.heads.resize(len.div_ceil(BLOCK), 0.0);
     buf.deltas.clear();
-    buf.heads.reserve(len.div_ceil(BLOCK));
-    buf.deltas.reserve(len);
-    let mut s = 0.0f64;
-    let mut head = 0.0f64;
-    for i in 0..len {
-        if i % BLOCK == 0 {
-            head = s;
-            buf.heads.push(head);
-        }
-        buf.deltas.push((s - head) as f32);
-        if i < n {
-            s += f64::from(y[i]) - mean;
-        }
+    buf.deltas.resize(len, 0.0);
+    let totals: Vec<f64> = y
+        .par_chunks(chunk)
+        .map(|c| c.iter().map(|&v| f64::from(v) - mean).sum::<f64>())
+        .collect();
+    let mut starts = Vec::with_capacity(totals.len() + 1);
+    let mut acc = 0.0f64;
+    for t in &totals {
+        starts.push(acc);
+        acc += t;
     }
+    starts.push(acc);
+    buf.deltas
+        .par_chunks_mut(chunk)
+        .zip(buf.heads.par_chunks_mut(chunk_blocks))
+        .enumerate()
+        .for_each(|(ci, (dd, hh))| {
+            let i0 = ci * chunk;
+            let mut s = starts[ci];
+            let mut head = s;
+            for (k, out) in dd.iter_mut().enumerate() {
+                if k % BLOCK == 0 {
+                    head = s;
+                    hh[k / BLOCK] = head;
+                }
+                *out = (s - head) as f32;
+                if let Some(&v) = y.get(i0 + k) {
+                    s += f64::from(v) - mean;
+                }
+            }
+        });
     let (heads, d) = (&buf.heads[..], &buf.deltas[..]);
-    let longest = ms.iter().map(|&m| len.saturating_sub(2 * m)).max().unwrap_or(0);
+    let longest = ms
+        .iter()
+        .map(|&m| len.saturating_sub(2 * m))
+        .max()
+        .unwrap_or(0);
     let n_blocks = longest.div_ceil(BLOCK);
-    let parts = (rayon::current_num_threads() * 4).clamp(1, 64).min(n_blocks.max(1));
+    let parts = (rayon::current_num_threads() * 4)
+        .clamp(1, 64)
+        .min(n_blocks.max(1));
     let per = n_blocks.div_ceil(parts.max(1)).max(1);
     let mut scratch_len = 0;
     for &m in ms {

@@ -1,0 +1,1 @@
+//! Deconvolution: PSFs, Wiener, Richardson-Lucy (being written).
