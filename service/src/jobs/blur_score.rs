@@ -5,7 +5,9 @@ use caliper_core::Progress;
 use caliper_core::blur::{BlurParams, render_svg, score_images};
 use serde_json::{Value, json};
 
-use super::{Artifact, JobError, JobInput, JobKind, JobOutput, param_error, parse_params};
+use super::{
+    Artifact, JobError, JobInput, JobKind, JobOutput, param_error, parse_params, stored_params,
+};
 use crate::error::ApiError;
 use crate::store::DatasetKind;
 
@@ -40,11 +42,7 @@ impl JobKind for BlurScore {
     }
 
     fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
-        let params: BlurParams =
-            serde_json::from_value(input.params.clone()).map_err(|e| JobError::Permanent {
-                code: "invalid_param",
-                message: e.to_string(),
-            })?;
+        let params: BlurParams = stored_params(&input.params)?;
         let names: Vec<String> = input.files.iter().map(|f| f.name.clone()).collect();
         let limits = caliper_core::io::ImageLimits::default();
         let load = |i: usize| -> caliper_core::CoreResult<Vec<u8>> {
@@ -75,11 +73,7 @@ impl JobKind for BlurScore {
         Ok(JobOutput {
             parameters,
             quality,
-            artifacts: vec![Artifact {
-                name: "scores.svg".into(),
-                media_type: "image/svg+xml".into(),
-                data: svg.into_bytes().into(),
-            }],
+            artifacts: vec![Artifact::svg("scores.svg", svg)],
         })
     }
 }

@@ -15,7 +15,9 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 use utoipa::ToSchema;
 
-use super::{Artifact, JobError, JobInput, JobKind, JobOutput, param_error, parse_params};
+use super::{
+    Artifact, JobError, JobInput, JobKind, JobOutput, param_error, parse_params, stored_params,
+};
 use crate::error::ApiError;
 use crate::store::DatasetKind;
 
@@ -144,11 +146,7 @@ impl JobKind for CameraCalibration {
     }
 
     fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
-        let p: CameraCalibParams =
-            serde_json::from_value(input.params.clone()).map_err(|e| JobError::Permanent {
-                code: "invalid_param",
-                message: e.to_string(),
-            })?;
+        let p: CameraCalibParams = stored_params(&input.params)?;
         let board = board_geometry(&p);
         let limits = ImageLimits::default();
         let total = input.files.len() as u64;
@@ -228,9 +226,9 @@ impl JobKind for CameraCalibration {
         progress.report("solving", 1, 1);
         let cov = coverage(&observations, &calib, 16, 12);
         let artifacts = vec![
-            svg("residuals.svg", residuals_svg(&observations, &calib)),
-            svg("view_rms.svg", view_rms_svg(&calib)),
-            svg("coverage.svg", coverage_svg(&cov, calib.image_size)),
+            Artifact::svg("residuals.svg", residuals_svg(&observations, &calib)),
+            Artifact::svg("view_rms.svg", view_rms_svg(&calib)),
+            Artifact::svg("coverage.svg", coverage_svg(&cov, calib.image_size)),
         ];
         let detected = images.iter().filter(|i| i.detected).count();
         let quality = json!({
@@ -272,14 +270,6 @@ fn permanent(code: &'static str, message: impl Into<String>) -> JobError {
     JobError::Permanent {
         code,
         message: message.into(),
-    }
-}
-
-fn svg(name: &str, text: String) -> Artifact {
-    Artifact {
-        name: name.into(),
-        media_type: "image/svg+xml".into(),
-        data: text.into_bytes().into(),
     }
 }
 

@@ -12,7 +12,7 @@ use caliper_core::imu::{
 };
 use serde_json::{Value, json};
 
-use super::{Artifact, JobError, JobInput, JobKind, JobOutput, parse_params};
+use super::{Artifact, JobError, JobInput, JobKind, JobOutput, normalize_as, stored_params};
 use crate::error::ApiError;
 use crate::store::DatasetKind;
 
@@ -39,21 +39,6 @@ fn to_value<T: serde::Serialize>(v: &T) -> Result<Value, JobError> {
     })
 }
 
-fn from_params<T: serde::de::DeserializeOwned>(p: &Value) -> Result<T, JobError> {
-    serde_json::from_value(p.clone()).map_err(|e| JobError::Permanent {
-        code: "invalid_param",
-        message: e.to_string(),
-    })
-}
-
-fn svg(name: &str, text: String) -> Artifact {
-    Artifact {
-        name: name.into(),
-        media_type: "image/svg+xml".into(),
-        data: text.into_bytes().into(),
-    }
-}
-
 fn schema_of<T: utoipa::PartialSchema>() -> Value {
     serde_json::to_value(T::schema()).unwrap_or(Value::Null)
 }
@@ -78,11 +63,10 @@ impl JobKind for ImuNoise {
         schema_of::<ImuNoiseParams>()
     }
     fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
-        let p: ImuNoiseParams = parse_params(params)?;
-        serde_json::to_value(&p).map_err(ApiError::internal)
+        normalize_as::<ImuNoiseParams>(params)
     }
     fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
-        let p: ImuNoiseParams = from_params(&input.params)?;
+        let p: ImuNoiseParams = stored_params(&input.params)?;
         let report = imu_noise(open_log(input)?, &p, progress)?;
         let quality = json!({
             "rate_hz": report.rate_hz,
@@ -94,7 +78,7 @@ impl JobKind for ImuNoise {
         Ok(JobOutput {
             parameters: to_value(&report)?,
             quality,
-            artifacts: vec![svg("allan.svg", allan_svg(&report))],
+            artifacts: vec![Artifact::svg("allan.svg", allan_svg(&report))],
         })
     }
 }
@@ -119,11 +103,10 @@ impl JobKind for ImuIntrinsics {
         schema_of::<ImuIntrinsicsParams>()
     }
     fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
-        let p: ImuIntrinsicsParams = parse_params(params)?;
-        serde_json::to_value(&p).map_err(ApiError::internal)
+        normalize_as::<ImuIntrinsicsParams>(params)
     }
     fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
-        let p: ImuIntrinsicsParams = from_params(&input.params)?;
+        let p: ImuIntrinsicsParams = stored_params(&input.params)?;
         let report = imu_intrinsics(open_log(input)?, &p, progress)?;
         let quality = json!({
             "usable_poses": report.usable_poses,
@@ -159,11 +142,10 @@ impl JobKind for ImuThermal {
         schema_of::<ImuThermalParams>()
     }
     fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
-        let p: ImuThermalParams = parse_params(params)?;
-        serde_json::to_value(&p).map_err(ApiError::internal)
+        normalize_as::<ImuThermalParams>(params)
     }
     fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
-        let p: ImuThermalParams = from_params(&input.params)?;
+        let p: ImuThermalParams = stored_params(&input.params)?;
         let report = imu_thermal(open_log(input)?, &p, progress)?;
         let quality = json!({
             "degree": report.degree,
@@ -173,7 +155,7 @@ impl JobKind for ImuThermal {
         Ok(JobOutput {
             parameters: to_value(&report)?,
             quality,
-            artifacts: vec![svg("thermal.svg", thermal_svg(&report))],
+            artifacts: vec![Artifact::svg("thermal.svg", thermal_svg(&report))],
         })
     }
 }

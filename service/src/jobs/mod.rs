@@ -43,6 +43,17 @@ pub struct Artifact {
     pub data: Bytes,
 }
 
+impl Artifact {
+    /// An SVG plot.
+    pub fn svg(name: &str, text: String) -> Self {
+        Self {
+            name: name.into(),
+            media_type: "image/svg+xml".into(),
+            data: text.into_bytes().into(),
+        }
+    }
+}
+
 /// What a job kind produces: the document's `parameters` and `quality`, plus artifacts.
 #[derive(Debug, Clone)]
 pub struct JobOutput {
@@ -132,6 +143,22 @@ pub fn parse_params<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T,
             format!("params.{path}")
         };
         ApiError::new("invalid_param", e.inner().to_string()).with_field(field)
+    })
+}
+
+/// Parse parameters (defaults filled in, unknown fields refused) and return their normal form.
+pub fn normalize_as<T: serde::de::DeserializeOwned + serde::Serialize>(
+    params: &Value,
+) -> Result<Value, ApiError> {
+    let p: T = parse_params(params)?;
+    serde_json::to_value(&p).map_err(ApiError::internal)
+}
+
+/// Read the normalised parameters stored on a job.
+pub fn stored_params<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T, JobError> {
+    serde_json::from_value(params.clone()).map_err(|e| JobError::Permanent {
+        code: "invalid_param",
+        message: e.to_string(),
     })
 }
 
