@@ -625,6 +625,8 @@ pub fn calibrate(
     let mut iterations = 0;
     let mut termination = Termination::MaxIterations;
     let mut rejected_corners = Vec::new();
+    // The camera of the current `shared`, when built (saves rebuilding it, see `known`).
+    let mut current: Option<Camera> = Some(initial.clone());
     for round in 0..=options.max_rejection_rounds {
         progress.report(
             "calibrate",
@@ -638,6 +640,7 @@ pub fn calibrate(
             kind: model,
             views: &data,
             aspect,
+            known: current.as_ref(),
         };
         let summary = lm_solve(
             &problem,
@@ -656,20 +659,25 @@ pub fn calibrate(
             break;
         }
         let camera = model.camera(&problem.camera_params(&shared))?;
-        if !reject(&mut views, &active, &camera, options, &mut rejected_corners) {
+        let changed = reject(&mut views, &active, &camera, options, &mut rejected_corners);
+        current = Some(camera);
+        if !changed {
             break;
         }
     }
 
     // 5. Report.
-    let camera = model.camera(
-        &CalibProblem {
-            kind: model,
-            views: &[],
-            aspect,
-        }
-        .camera_params(&shared),
-    )?;
+    let params = CalibProblem {
+        kind: model,
+        views: &[],
+        aspect,
+        known: None,
+    }
+    .camera_params(&shared);
+    let camera = match current {
+        Some(c) if c.params() == params.as_slice() => c,
+        _ => model.camera(&params)?,
+    };
     finish(
         views,
         camera,
@@ -917,6 +925,7 @@ fn finish(
         kind: model,
         views: &data,
         aspect,
+        known: Some(&camera),
     };
     let free = fixed.iter().filter(|f| !**f).count() + 6 * poses.len();
     let dof = 2 * n_in as isize - free as isize;

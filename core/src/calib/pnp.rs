@@ -88,6 +88,7 @@ pub(crate) fn pose_for_view(
         kind,
         views,
         aspect: None,
+        known: Some(camera),
     };
     let mut shared = camera.params().to_vec();
     let fixed = vec![true; shared.len()];

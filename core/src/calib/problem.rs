@@ -25,6 +25,10 @@ pub(crate) struct CalibProblem<'a> {
     pub kind: ModelKind,
     pub views: &'a [ViewData],
     pub aspect: Option<f64>,
+    /// A camera already built for some parameters: [`SchurProblem::prepare`] clones it
+    /// when asked for exactly those (building a camera validates its distortion, which costs
+    /// far more than an evaluation of a small problem).
+    pub known: Option<&'a Camera>,
 }
 
 impl CalibProblem<'_> {
@@ -54,7 +58,14 @@ impl SchurProblem for CalibProblem<'_> {
     }
 
     fn prepare(&self, shared: &[f64]) -> Option<Camera> {
-        self.kind.camera(&self.camera_params(shared)).ok()
+        let params = self.camera_params(shared);
+        if let Some(c) = self.known
+            && ModelKind::of(c) == self.kind
+            && c.params() == params.as_slice()
+        {
+            return Some(c.clone());
+        }
+        self.kind.camera(&params).ok()
     }
 
     fn residual(&self, cam: &Camera, block: usize, obs: usize, pose: &Se3) -> Option<Vector2<f64>> {

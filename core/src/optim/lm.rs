@@ -157,17 +157,42 @@ pub fn cost<P: SchurProblem>(
     loss: &RobustLoss,
 ) -> Option<f64> {
     let ctx = problem.prepare(shared)?;
-    let per_block: Option<Vec<f64>> = (0..problem.num_blocks())
-        .into_par_iter()
-        .map(|b| {
-            let mut c = 0.0;
-            for o in 0..problem.num_observations(b) {
-                let r = problem.residual(&ctx, b, o, &poses[b])?;
-                c += loss.rho(r.norm_squared());
-            }
-            Some(c)
-        })
-        .collect();
+    cost_with(problem, &ctx, poses, loss)
+}
+
+/// Observations below which the blocks are evaluated on the calling thread: handing a small
+/// evaluation to the thread pool (and waking it) costs more than it saves.
+const PARALLEL_MIN_OBSERVATIONS: usize = 4096;
+
+/// `f(b)` for every block, in block order; across the thread pool only for large problems.
+fn map_blocks<P: SchurProblem, T: Send>(
+    problem: &P,
+    f: impl Fn(usize) -> Option<T> + Sync + Send,
+) -> Option<Vec<T>> {
+    let nb = problem.num_blocks();
+    let total: usize = (0..nb).map(|b| problem.num_observations(b)).sum();
+    if nb > 1 && total >= PARALLEL_MIN_OBSERVATIONS {
+        (0..nb).into_par_iter().map(f).collect()
+    } else {
+        (0..nb).map(f).collect()
+    }
+}
+
+/// [`cost`] with a prepared context.
+fn cost_with<P: SchurProblem>(
+    problem: &P,
+    ctx: &P::Context,
+    poses: &[Se3],
+    loss: &RobustLoss,
+) -> Option<f64> {
+    let per_block = map_blocks(problem, |b| {
+        let mut c = 0.0;
+        for o in 0..problem.num_observations(b) {
+            let r = problem.residual(ctx, b, o, &poses[b])?;
+            c += loss.rho(r.norm_squared());
+        }
+        Some(c)
+    });
     // Summed in block order so the result does not depend on the thread schedule.
     let total = 0.5 * per_block?.iter().sum::<f64>();
     total.is_finite().then_some(total)
@@ -177,49 +202,53 @@ pub fn cost<P: SchurProblem>(
 /// parameters are dropped (zeroed).
 fn normal_equations<P: SchurProblem>(
     problem: &P,
-    shared: &[f64],
+    ctx: &P::Context,
     fixed: &[bool],
     poses: &[Se3],
     loss: &RobustLoss,
 ) -> Option<Normal> {
-    let ctx = problem.prepare(shared)?;
     let ns = problem.num_shared();
-    let per_block: Option<Vec<_>> = (0..problem.num_blocks())
-        .into_par_iter()
-        .map(|b| {
-            let mut u = Matrix6::<f64>::zeros();
-            let mut wt = Matrix6xX::<f64>::zeros(ns);
-            let mut gp = Vector6::<f64>::zeros();
-            let mut v = DMatrix::<f64>::zeros(ns, ns);
-            let mut gs = DVector::<f64>::zeros(ns);
-            let mut c = 0.0;
-            for o in 0..problem.num_observations(b) {
-                let (r, mut js, jp) = problem.linearize(&ctx, b, o, &poses[b])?;
-                let s = r.norm_squared();
-                c += loss.rho(s);
-                let w = loss.weight(s);
-                for (k, f) in fixed.iter().enumerate() {
-                    if *f {
-                        js[(0, k)] = 0.0;
-                        js[(1, k)] = 0.0;
-                    }
+    // Only the free shared columns are accumulated: those of fixed parameters stay zero (for a
+    // pose-only problem, e.g. PnP, the shared part costs nothing).
+    let free: Vec<usize> = (0..ns).filter(|&k| !fixed[k]).collect();
+    let per_block: Option<Vec<_>> = map_blocks(problem, |b| {
+        let mut u = Matrix6::<f64>::zeros();
+        let mut wt = Matrix6xX::<f64>::zeros(ns);
+        let mut gp = Vector6::<f64>::zeros();
+        let mut v = DMatrix::<f64>::zeros(ns, ns);
+        let mut gs = DVector::<f64>::zeros(ns);
+        let mut c = 0.0;
+        for o in 0..problem.num_observations(b) {
+            let (r, js, jp) = problem.linearize(ctx, b, o, &poses[b])?;
+            let s = r.norm_squared();
+            c += loss.rho(s);
+            let w = loss.weight(s);
+            let jpw = jp.transpose() * w;
+            u += jpw * jp;
+            gp += jpw * r;
+            if free.is_empty() {
+                continue;
+            }
+            // Plain loops over column-major storage: S is small and this is the innermost
+            // accumulation (no temporaries on the heap).
+            let jss = js.as_slice();
+            let wts = wt.as_mut_slice();
+            let vs = v.as_mut_slice();
+            for (fi, &i) in free.iter().enumerate() {
+                let (b0, b1) = (jss[2 * i], jss[2 * i + 1]);
+                for (k, x) in wts[6 * i..6 * i + 6].iter_mut().enumerate() {
+                    *x += jpw[(k, 0)] * b0 + jpw[(k, 1)] * b1;
                 }
-                let jpw = jp.transpose() * w;
-                u += jpw * jp;
-                gp += jpw * r;
-                wt += jpw * &js;
-                // Plain loops: S is small and this is the innermost accumulation.
-                for i in 0..ns {
-                    let (a0, a1) = (w * js[(0, i)], w * js[(1, i)]);
-                    gs[i] += a0 * r.x + a1 * r.y;
-                    for j in i..ns {
-                        v[(i, j)] += a0 * js[(0, j)] + a1 * js[(1, j)];
-                    }
+                let (a0, a1) = (w * b0, w * b1);
+                gs[i] += a0 * r.x + a1 * r.y;
+                // Upper triangle, v[(i, j)] for j ≥ i.
+                for &j in &free[fi..] {
+                    vs[j * ns + i] += a0 * jss[2 * j] + a1 * jss[2 * j + 1];
                 }
             }
-            Some((u, wt, gp, v, gs, c))
-        })
-        .collect();
+        }
+        Some((u, wt, gp, v, gs, c))
+    });
     let mut v = DMatrix::<f64>::zeros(ns, ns);
     let mut gs = DVector::<f64>::zeros(ns);
     let mut cost = 0.0;
@@ -327,9 +356,13 @@ pub fn solve<P: SchurProblem>(
     }
     options.loss.validate()?;
     let loss = options.loss;
-    let mut normal = normal_equations(problem, shared, fixed, poses, &loss).ok_or_else(|| {
+    let start_error = || {
         CoreError::NoSolution("the starting point of the optimisation cannot be evaluated".into())
-    })?;
+    };
+    // The context of the current shared parameters; rebuilt only when a step moves them.
+    let mut ctx = problem.prepare(shared).ok_or_else(start_error)?;
+    let mut normal =
+        normal_equations(problem, &ctx, fixed, poses, &loss).ok_or_else(start_error)?;
     let initial_cost = normal.cost;
     let mut lambda = options.initial_lambda;
     let mut nu = 2.0;
@@ -389,14 +422,27 @@ pub fn solve<P: SchurProblem>(
         let small_step = step_sq.sqrt()
             <= options.parameter_tolerance * (x_sq.sqrt() + options.parameter_tolerance);
 
-        let new_cost = cost(problem, &new_shared, &new_poses, &loss);
+        // `None`: the shared parameters did not move (all fixed, or a zero step), keep `ctx`.
+        let new_ctx = if new_shared.as_slice() == &*shared {
+            None
+        } else {
+            Some(problem.prepare(&new_shared))
+        };
+        let new_cost = match &new_ctx {
+            None => cost_with(problem, &ctx, &new_poses, &loss),
+            Some(Some(c)) => cost_with(problem, c, &new_poses, &loss),
+            Some(None) => None,
+        };
         match new_cost {
             Some(c) if predicted > 0.0 && c < normal.cost => {
                 let rho = (normal.cost - c) / predicted;
                 let decrease = normal.cost - c;
                 let old_cost = normal.cost;
-                let Some(n) = normal_equations(problem, &new_shared, fixed, &new_poses, &loss)
-                else {
+                let step_ctx = match &new_ctx {
+                    Some(Some(c)) => c,
+                    _ => &ctx,
+                };
+                let Some(n) = normal_equations(problem, step_ctx, fixed, &new_poses, &loss) else {
                     // Evaluable without Jacobians but not with them: treat as a failed step.
                     lambda *= nu;
                     nu *= 2.0;
@@ -404,6 +450,9 @@ pub fn solve<P: SchurProblem>(
                 };
                 shared.copy_from_slice(&new_shared);
                 poses.copy_from_slice(&new_poses);
+                if let Some(Some(c)) = new_ctx {
+                    ctx = c;
+                }
                 normal = n;
                 accepted += 1;
                 lambda *= (1.0 - (2.0 * rho - 1.0).powi(3)).max(1.0 / 3.0);
@@ -447,10 +496,11 @@ pub fn marginal_shared_covariance<P: SchurProblem>(
     fixed: &[bool],
     poses: &[Se3],
 ) -> CoreResult<DMatrix<f64>> {
+    let unevaluable =
+        || CoreError::NoSolution("covariance: the solution cannot be evaluated".into());
+    let ctx = problem.prepare(shared).ok_or_else(unevaluable)?;
     let n =
-        normal_equations(problem, shared, fixed, poses, &RobustLoss::None).ok_or_else(|| {
-            CoreError::NoSolution("covariance: the solution cannot be evaluated".into())
-        })?;
+        normal_equations(problem, &ctx, fixed, poses, &RobustLoss::None).ok_or_else(unevaluable)?;
     let ns = n.v.nrows();
     let mut s = n.v.clone();
     for (u, wt, _) in &n.blocks {

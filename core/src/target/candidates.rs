@@ -20,15 +20,58 @@
 //! sectors whose boundaries come in two nearly opposite pairs: the two lines through an
 //! X-junction. The sector boundaries give the edge directions used to seed the grid.
 
+use std::cell::OnceCell;
+use std::sync::OnceLock;
+
 use super::filter::ImageF;
 
-/// A corner candidate.
-#[derive(Clone, Debug)]
-pub struct Candidate {
-    /// Position (pixel centres at integers), sub-pixel from a parabola through the response.
-    pub p: [f64; 2],
-    /// Directions (radians, modulo π) of the two edge lines through the corner.
-    pub lines: [f64; 2],
+/// Radius of the X-junction circle test, pixels.
+pub const X_RADIUS: f64 = 4.0;
+/// Larger radius tried when the first fails (blurred corners, large squares).
+pub const X_RADIUS_WIDE: f64 = 6.5;
+
+/// The corner candidates: the response maxima, strongest first, each with the edge lines of
+/// its X-junction test (see the module docs). The test is run on first use only: the grid
+/// search touches a few dozen of the (up to thousands of) maxima.
+pub struct Candidates<'a> {
+    s: &'a ImageF,
+    min_contrast: f64,
+    /// Positions (pixel centres at integers), sub-pixel from a parabola through the response.
+    pub points: Vec<[f64; 2]>,
+    lines: Vec<OnceCell<Option<[f64; 2]>>>,
+}
+
+impl<'a> Candidates<'a> {
+    pub fn new(s: &'a ImageF, points: Vec<[f64; 2]>, min_contrast: f64) -> Self {
+        let lines = points.iter().map(|_| OnceCell::new()).collect();
+        Self {
+            s,
+            min_contrast,
+            points,
+            lines,
+        }
+    }
+
+    /// Number of maxima.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Position of maximum `k`.
+    #[inline]
+    pub fn p(&self, k: usize) -> [f64; 2] {
+        self.points[k]
+    }
+
+    /// Directions (radians, modulo π) of the two edge lines through maximum `k`, or `None`
+    /// when it is not an X-junction (tested at [`X_RADIUS`], then [`X_RADIUS_WIDE`]).
+    pub fn lines(&self, k: usize) -> Option<[f64; 2]> {
+        *self.lines[k].get_or_init(|| {
+            let p = self.points[k];
+            x_junction(self.s, p, X_RADIUS, self.min_contrast)
+                .or_else(|| x_junction(self.s, p, X_RADIUS_WIDE, self.min_contrast))
+        })
+    }
 }
 
 /// `max(0, −det H)` by central differences of the smoothed image; zero on a 2-pixel border.
@@ -39,15 +82,22 @@ pub fn saddle_response(s: &ImageF) -> ImageF {
         return r;
     }
     let d = &s.data;
+    let n = w - 4;
     for y in 2..h - 2 {
-        let row = y * w;
-        for x in 2..w - 2 {
-            let c = row + x;
-            let ixx = d[c + 1] - 2.0 * d[c] + d[c - 1];
-            let iyy = d[c + w] - 2.0 * d[c] + d[c - w];
-            let ixy = 0.25 * (d[c + w + 1] - d[c + w - 1] - d[c - w + 1] + d[c - w - 1]);
+        // Equal-length slices of the three rows (centre column x = 2 + i) so that the loop
+        // has no bounds checks and vectorises.
+        let row = |yy: usize, dx: usize| &d[yy * w + 1 + dx..yy * w + 1 + dx + n];
+        let (ul, ur) = (row(y - 1, 0), row(y - 1, 2));
+        let (ml, mc, mr) = (row(y, 0), row(y, 1), row(y, 2));
+        let (dl, dc, dr) = (row(y + 1, 0), row(y + 1, 1), row(y + 1, 2));
+        let uc = row(y - 1, 1);
+        let out = &mut r.data[y * w + 2..y * w + 2 + n];
+        for i in 0..n {
+            let ixx = mr[i] - 2.0 * mc[i] + ml[i];
+            let iyy = dc[i] - 2.0 * mc[i] + uc[i];
+            let ixy = 0.25 * (dr[i] - dl[i] - ur[i] + ul[i]);
             let v = ixy * ixy - ixx * iyy;
-            r.data[c] = v.max(0.0);
+            out[i] = v.max(0.0);
         }
     }
     r
@@ -61,12 +111,25 @@ pub fn local_maxima(r: &ImageF, threshold: f32, max: usize) -> Vec<([f64; 2], f3
         return out;
     }
     let d = &r.data;
+    let n = w - 6;
+    let mut flag = vec![false; n];
     for y in 3..h - 3 {
+        // Cheap rejections first, branch-free over the row (same tie rule as the window test
+        // below): most pixels above the threshold lie on the flank of a peak and have a
+        // larger direct neighbour.
+        let row = |yy: usize, dx: usize| &d[yy * w + 2 + dx..yy * w + 2 + dx + n];
+        let (l, c, rr) = (row(y, 0), row(y, 1), row(y, 2));
+        let (up, dn) = (row(y - 1, 1), row(y + 1, 1));
+        for i in 0..n {
+            let v = c[i];
+            flag[i] = (v > threshold) & (l[i] < v) & (rr[i] <= v) & (up[i] < v) & (dn[i] <= v);
+        }
         for x in 3..w - 3 {
-            let v = d[y * w + x];
-            if v <= threshold {
+            if !flag[x - 3] {
                 continue;
             }
+            let v = d[y * w + x];
+            let c = y * w + x;
             let mut is_max = true;
             'win: for dy in -2isize..=2 {
                 let row = (y as isize + dy) as usize * w;
@@ -86,7 +149,6 @@ pub fn local_maxima(r: &ImageF, threshold: f32, max: usize) -> Vec<([f64; 2], f3
                 continue;
             }
             // Sub-pixel peak from a parabola per axis (only a start for the grid search).
-            let c = y * w + x;
             let px = parabola(d[c - 1], v, d[c + 1]);
             let py = parabola(d[c - w], v, d[c + w]);
             out.push(([x as f64 + px, y as f64 + py], v));
@@ -109,6 +171,15 @@ fn parabola(a: f32, b: f32, c: f32) -> f64 {
 /// Samples on the circle of the X test.
 const CIRCLE_SAMPLES: usize = 32;
 
+/// `(sin, cos)` of the sample angles of the X test.
+fn circle() -> &'static [(f64, f64); CIRCLE_SAMPLES] {
+    static TABLE: OnceLock<[(f64, f64); CIRCLE_SAMPLES]> = OnceLock::new();
+    TABLE.get_or_init(|| {
+        let step = std::f64::consts::TAU / CIRCLE_SAMPLES as f64;
+        std::array::from_fn(|k| (k as f64 * step).sin_cos())
+    })
+}
+
 /// The X-junction test on a circle of radius `radius` around `p` (see the module docs).
 /// Returns the two edge-line directions (radians modulo π), or `None` when the neighbourhood
 /// is not an X-junction with at least `min_contrast` grey levels between the sectors.
@@ -118,9 +189,9 @@ pub fn x_junction(s: &ImageF, p: [f64; 2], radius: f64, min_contrast: f64) -> Op
     }
     let mut v = [0.0f64; CIRCLE_SAMPLES];
     let step = std::f64::consts::TAU / CIRCLE_SAMPLES as f64;
-    for (k, vk) in v.iter_mut().enumerate() {
-        let (sn, cs) = (k as f64 * step).sin_cos();
-        *vk = f64::from(s.bilinear(p[0] + radius * cs, p[1] + radius * sn));
+    for (vk, &(sn, cs)) in v.iter_mut().zip(circle()) {
+        // Inside: `contains(p, radius + 1)` above.
+        *vk = f64::from(s.bilinear_inside(p[0] + radius * cs, p[1] + radius * sn));
     }
     let (lo, hi) = v
         .iter()
@@ -142,7 +213,8 @@ pub fn x_junction(s: &ImageF, p: [f64; 2], radius: f64, min_contrast: f64) -> Op
     // Start from a labelled sample, walk once around, record transitions between labels.
     let start = (0..CIRCLE_SAMPLES).find(|&k| label(v[k]) != 0)?;
     let mut last = start;
-    let mut transitions: Vec<f64> = Vec::with_capacity(4);
+    let mut transitions = [0.0f64; 4];
+    let mut nt = 0;
     for t in 1..=CIRCLE_SAMPLES {
         let k = (start + t) % CIRCLE_SAMPLES;
         let l = label(v[k]);
@@ -150,7 +222,7 @@ pub fn x_junction(s: &ImageF, p: [f64; 2], radius: f64, min_contrast: f64) -> Op
             continue;
         }
         if l != label(v[last]) {
-            if transitions.len() == 4 {
+            if nt == 4 {
                 return None;
             }
             // Crossing of `mid` between sample `last` and sample `k`, linearly.
@@ -164,11 +236,12 @@ pub fn x_junction(s: &ImageF, p: [f64; 2], radius: f64, min_contrast: f64) -> Op
                     break;
                 }
             }
-            transitions.push(angle.rem_euclid(std::f64::consts::TAU));
+            transitions[nt] = angle.rem_euclid(std::f64::consts::TAU);
+            nt += 1;
         }
         last = k;
     }
-    if transitions.len() != 4 {
+    if nt != 4 {
         return None;
     }
     transitions.sort_by(f64::total_cmp);

@@ -15,7 +15,7 @@ use std::collections::{BTreeMap, HashMap};
 
 use nalgebra::Vector2;
 
-use super::candidates::{Candidate, angle_diff_mod_pi, x_junction};
+use super::candidates::{Candidates, angle_diff_mod_pi, x_junction};
 use super::filter::ImageF;
 use super::subpix::SaddleFitter;
 use crate::calib::{homography_dlt, transfer};
@@ -29,12 +29,12 @@ pub struct SpatialIndex {
 }
 
 impl SpatialIndex {
-    pub fn new(cands: &[Candidate], w: usize, h: usize, cell: f64) -> Self {
+    pub fn new(points: &[[f64; 2]], w: usize, h: usize, cell: f64) -> Self {
         let nx = (w as f64 / cell).ceil().max(1.0) as usize;
         let ny = (h as f64 / cell).ceil().max(1.0) as usize;
         let mut cells = vec![Vec::new(); nx * ny];
-        for (k, c) in cands.iter().enumerate() {
-            let (cx, cy) = Self::cell_of(cell, nx, ny, c.p);
+        for (k, &p) in points.iter().enumerate() {
+            let (cx, cy) = Self::cell_of(cell, nx, ny, p);
             cells[cy * nx + cx].push(k as u32);
         }
         Self {
@@ -51,15 +51,15 @@ impl SpatialIndex {
         (cx, cy)
     }
 
-    /// Indices of candidates within `r` of `p`, nearest first.
-    pub fn within(&self, cands: &[Candidate], p: [f64; 2], r: f64) -> Vec<(usize, f64)> {
+    /// Indices of points within `r` of `p`, nearest first.
+    pub fn within(&self, points: &[[f64; 2]], p: [f64; 2], r: f64) -> Vec<(usize, f64)> {
         let (x0, y0) = Self::cell_of(self.cell, self.nx, self.ny, [p[0] - r, p[1] - r]);
         let (x1, y1) = Self::cell_of(self.cell, self.nx, self.ny, [p[0] + r, p[1] + r]);
         let mut out = Vec::new();
         for cy in y0..=y1 {
             for cx in x0..=x1 {
                 for &k in &self.cells[cy * self.nx + cx] {
-                    let q = cands[k as usize].p;
+                    let q = points[k as usize];
                     let d = (q[0] - p[0]).hypot(q[1] - p[1]);
                     if d <= r {
                         out.push((k as usize, d));
@@ -72,10 +72,10 @@ impl SpatialIndex {
     }
 
     /// The nearest candidate `q` with `q − p` within `max_angle` of `dir` (unit), at distance
-    /// `min_dist..max_dist`, whose own edge lines include the direction of `q − p`.
+    /// `min_dist..max_dist`, an X-junction whose own edge lines include the direction of `q − p`.
     pub fn nearest_along(
         &self,
-        cands: &[Candidate],
+        cands: &Candidates<'_>,
         p: [f64; 2],
         dir: [f64; 2],
         max_angle: f64,
@@ -106,8 +106,8 @@ impl SpatialIndex {
                         continue;
                     }
                     for &k in &self.cells[cy as usize * self.nx + cx as usize] {
-                        let c = &cands[k as usize];
-                        let (dx, dy) = (c.p[0] - p[0], c.p[1] - p[1]);
+                        let c = cands.p(k as usize);
+                        let (dx, dy) = (c[0] - p[0], c[1] - p[1]);
                         let d = dx.hypot(dy);
                         if d < min_dist || d > max_dist {
                             continue;
@@ -115,9 +115,14 @@ impl SpatialIndex {
                         if (dx * dir[0] + dy * dir[1]) / d < cos_min {
                             continue;
                         }
+                        if best.is_some_and(|(_, bd)| d >= bd) {
+                            continue;
+                        }
+                        let Some(lines) = cands.lines(k as usize) else {
+                            continue;
+                        };
                         let a = dy.atan2(dx);
-                        let aligned = c.lines.iter().any(|&l| angle_diff_mod_pi(l, a) < max_angle);
-                        if aligned && best.is_none_or(|(_, bd)| d < bd) {
+                        if lines.iter().any(|&l| angle_diff_mod_pi(l, a) < max_angle) {
                             best = Some((k as usize, d));
                         }
                     }
@@ -196,7 +201,7 @@ impl Grown {
 /// Everything the growth needs.
 pub struct GrowCtx<'a> {
     pub s: &'a ImageF,
-    pub cands: &'a [Candidate],
+    pub cands: &'a Candidates<'a>,
     pub index: &'a SpatialIndex,
     pub fitter: &'a SaddleFitter,
     pub min_contrast: f64,
@@ -450,16 +455,16 @@ impl GrowCtx<'_> {
                 || (angle_diff_mod_pi(lines[1], au) < tol && angle_diff_mod_pi(lines[0], av) < tol);
             aligned && polarity(self.s, p, u, v, self.min_contrast) == expected
         };
-        for (k, _) in self.index.within(self.cands, pred, radius) {
+        for (k, _) in self.index.within(&self.cands.points, pred, radius) {
             if used.contains(&k) {
                 continue;
             }
-            let c = &self.cands[k];
-            if accept(c.p, c.lines) {
-                return Some(Node {
-                    p: c.p,
-                    cand: Some(k),
-                });
+            let Some(lines) = self.cands.lines(k) else {
+                continue;
+            };
+            let p = self.cands.p(k);
+            if accept(p, lines) {
+                return Some(Node { p, cand: Some(k) });
             }
         }
         // Recovery: no candidate (lost to blur, glare or suppression by a stronger neighbour).

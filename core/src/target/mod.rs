@@ -60,8 +60,8 @@ use serde::{Deserialize, Serialize};
 use crate::calib::ViewObservations;
 use crate::error::{CoreError, CoreResult};
 use crate::io::Gray;
-use candidates::{Candidate, local_maxima, saddle_response, x_junction};
-use filter::{ImageF, gaussian_blur};
+use candidates::{Candidates, X_RADIUS, local_maxima, saddle_response};
+use filter::{ImageF, gaussian_blur_gray};
 use grid::{GrowCtx, Node, SpatialIndex, Trim, polarity, trim};
 use subpix::SaddleFitter;
 
@@ -176,11 +176,6 @@ fn not_found(reason: impl Into<String>) -> Detection {
     }
 }
 
-/// Radius of the X-junction circle test, pixels.
-const X_RADIUS: f64 = 4.0;
-/// Larger radius tried when the first fails (blurred corners, large squares).
-const X_RADIUS_WIDE: f64 = 6.5;
-
 fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
 }
@@ -208,31 +203,30 @@ pub fn detect_chessboard(img: &Gray, cols: usize, rows: usize, opts: &DetectOpti
     if w < 16 || h < 16 {
         return not_found(format!("image {w}×{h} is too small"));
     }
-    let s = gaussian_blur(&ImageF::from_gray(img), opts.sigma);
+    let s = gaussian_blur_gray(img, opts.sigma);
 
     // 1–2. Candidates.
     let r = saddle_response(&s);
-    let rmax = r.data.iter().copied().fold(0.0f32, f32::max);
+    let rmax = max_or_zero(&r.data);
     if rmax <= 0.0 {
         return not_found("no saddle points: the image is flat");
     }
     let threshold = (opts.relative_threshold as f32 * rmax).max(1e-3);
     let maxima = local_maxima(&r, threshold, opts.max_candidates);
-    let cands: Vec<Candidate> = maxima
-        .into_iter()
-        .filter_map(|(p, _response)| {
-            let lines = x_junction(&s, p, X_RADIUS, opts.min_contrast)
-                .or_else(|| x_junction(&s, p, X_RADIUS_WIDE, opts.min_contrast))?;
-            Some(Candidate { p, lines })
-        })
-        .collect();
-    if cands.len() < 4 {
-        return not_found(format!(
-            "{} X-junction candidates: no chessboard",
-            cands.len()
-        ));
+    let cands = Candidates::new(
+        &s,
+        maxima.into_iter().map(|(p, _response)| p).collect(),
+        opts.min_contrast,
+    );
+    // The X test runs lazily: here only until four candidates pass.
+    let num_x = (0..cands.len())
+        .filter(|&k| cands.lines(k).is_some())
+        .take(4)
+        .count();
+    if num_x < 4 {
+        return not_found(format!("{num_x} X-junction candidates: no chessboard"));
     }
-    let index = SpatialIndex::new(&cands, w, h, 8.0);
+    let index = SpatialIndex::new(&cands.points, w, h, 8.0);
     let fitter = SaddleFitter::new(3);
     let ctx = GrowCtx {
         s: &s,
@@ -257,6 +251,9 @@ pub fn detect_chessboard(img: &Gray, cols: usize, rows: usize, opts: &DetectOpti
         }
         if seeds >= opts.max_seeds {
             break;
+        }
+        if cands.lines(k).is_none() {
+            continue;
         }
         seeds += 1;
         let Some((seed, pol)) = find_seed(&ctx, k, max_dist) else {
@@ -325,18 +322,32 @@ pub fn detect_chessboard(img: &Gray, cols: usize, rows: usize, opts: &DetectOpti
     }
 }
 
+/// The largest value of `d` and 0 (NaN ignored), in lanes that vectorise.
+fn max_or_zero(d: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 8];
+    let chunks = d.chunks_exact(8);
+    let rest = chunks.remainder();
+    for ch in chunks {
+        for (a, &v) in acc.iter_mut().zip(ch) {
+            *a = if v > *a { v } else { *a };
+        }
+    }
+    acc.iter().chain(rest).copied().fold(0.0f32, f32::max)
+}
+
 /// A seed quad around candidate `k`: itself, its nearest neighbours along its two edge lines
 /// and the diagonal neighbour, with consistent colours. Returns the quad and the polarity of
 /// its first corner.
 fn find_seed(ctx: &GrowCtx<'_>, k: usize, max_dist: f64) -> Option<([Node; 4], i8)> {
-    let c = &ctx.cands[k];
-    let dirs = c.lines.map(|a| [a.cos(), a.sin()]);
+    let c = ctx.cands.p(k);
+    let lines = ctx.cands.lines(k)?;
+    let dirs = lines.map(|a| [a.cos(), a.sin()]);
     let max_angle = 0.35;
     for s1 in [1.0, -1.0] {
         let d1 = [s1 * dirs[0][0], s1 * dirs[0][1]];
         let Some(n1) = ctx
             .index
-            .nearest_along(ctx.cands, c.p, d1, max_angle, 3.0, max_dist)
+            .nearest_along(ctx.cands, c, d1, max_angle, 3.0, max_dist)
         else {
             continue;
         };
@@ -344,39 +355,40 @@ fn find_seed(ctx: &GrowCtx<'_>, k: usize, max_dist: f64) -> Option<([Node; 4], i
             let d2 = [s2 * dirs[1][0], s2 * dirs[1][1]];
             let Some(n2) = ctx
                 .index
-                .nearest_along(ctx.cands, c.p, d2, max_angle, 3.0, max_dist)
+                .nearest_along(ctx.cands, c, d2, max_angle, 3.0, max_dist)
             else {
                 continue;
             };
-            let (p1, p2) = (ctx.cands[n1].p, ctx.cands[n2].p);
-            let u = [p1[0] - c.p[0], p1[1] - c.p[1]];
-            let v = [p2[0] - c.p[0], p2[1] - c.p[1]];
+            let (p1, p2) = (ctx.cands.p(n1), ctx.cands.p(n2));
+            let u = [p1[0] - c[0], p1[1] - c[1]];
+            let v = [p2[0] - c[0], p2[1] - c[1]];
             let (lu, lv) = (u[0].hypot(u[1]), v[0].hypot(v[1]));
             if lu > 4.0 * lv || lv > 4.0 * lu {
                 continue;
             }
-            let pol = polarity(ctx.s, c.p, u, v, ctx.min_contrast);
+            let pol = polarity(ctx.s, c, u, v, ctx.min_contrast);
             if pol == 0
                 || polarity(ctx.s, p1, u, v, ctx.min_contrast) != -pol
                 || polarity(ctx.s, p2, u, v, ctx.min_contrast) != -pol
             {
                 continue;
             }
-            let diag = [c.p[0] + u[0] + v[0], c.p[1] + u[1] + v[1]];
+            let diag = [c[0] + u[0] + v[0], c[1] + u[1] + v[1]];
             let n3 = ctx
                 .index
-                .within(ctx.cands, diag, 0.35 * lu.min(lv))
+                .within(&ctx.cands.points, diag, 0.35 * lu.min(lv))
                 .into_iter()
                 .map(|(q, _)| q)
                 .find(|&q| {
                     q != k
                         && q != n1
                         && q != n2
-                        && polarity(ctx.s, ctx.cands[q].p, u, v, ctx.min_contrast) == pol
+                        && ctx.cands.lines(q).is_some()
+                        && polarity(ctx.s, ctx.cands.p(q), u, v, ctx.min_contrast) == pol
                 });
             let Some(n3) = n3 else { continue };
             let node = |q: usize| Node {
-                p: ctx.cands[q].p,
+                p: ctx.cands.p(q),
                 cand: Some(q),
             };
             return Some(([node(k), node(n1), node(n2), node(n3)], pol));

@@ -58,6 +58,51 @@ impl SaddleFitter {
         Self { radius, op }
     }
 
+    /// The quadratic's coefficients on the window centred at `c` (inside the image with a
+    /// margin of `radius`).
+    fn fit(&self, s: &ImageF, c: [f64; 2]) -> [f64; 6] {
+        let rad = self.radius;
+        let mut coef = [0.0f64; 6];
+        let (xs, ys) = (c[0] - f64::from(rad), c[1] - f64::from(rad));
+        let (x0, y0) = (xs.floor(), ys.floor());
+        let n = 2 * rad as usize + 1;
+        if x0 < 0.0 || y0 < 0.0 || x0 as usize + n >= s.w || y0 as usize + n >= s.h {
+            // At the far border the bilinear cell is clamped: sample by sample.
+            let mut k = 0;
+            for dy in -rad..=rad {
+                let y = c[1] + f64::from(dy);
+                for dx in -rad..=rad {
+                    let v = f64::from(s.bilinear(c[0] + f64::from(dx), y));
+                    for (ci, oi) in coef.iter_mut().zip(&self.op[k]) {
+                        *ci += oi * v;
+                    }
+                    k += 1;
+                }
+            }
+            return coef;
+        }
+        // Integer offsets share the fractional part: fixed bilinear weights over a window of
+        // whole pixels.
+        let (fx, fy) = ((xs - x0) as f32, (ys - y0) as f32);
+        let (x0, y0) = (x0 as usize, y0 as usize);
+        let w = s.w;
+        let mut ops = self.op.chunks_exact(n);
+        for j in 0..n {
+            let r0 = &s.data[(y0 + j) * w + x0..(y0 + j) * w + x0 + n + 1];
+            let r1 = &s.data[(y0 + j + 1) * w + x0..(y0 + j + 1) * w + x0 + n + 1];
+            let Some(ops_row) = ops.next() else { break };
+            for (i, o) in ops_row.iter().enumerate() {
+                let a = r0[i] + fx * (r0[i + 1] - r0[i]);
+                let b = r1[i] + fx * (r1[i + 1] - r1[i]);
+                let v = f64::from(a + fy * (b - a));
+                for (ci, oi) in coef.iter_mut().zip(o) {
+                    *ci += oi * v;
+                }
+            }
+        }
+        coef
+    }
+
     /// Refines `start` to the saddle point of `s`. `None` when the window leaves the image,
     /// the fitted quadratic is not a saddle, or the estimate moves more than `max_shift` pixels
     /// from `start`.
@@ -68,19 +113,7 @@ impl SaddleFitter {
             if !s.contains(c[0], c[1], r) {
                 return None;
             }
-            let mut coef = [0.0f64; 6];
-            let mut k = 0;
-            for dy in -self.radius..=self.radius {
-                let y = c[1] + f64::from(dy);
-                for dx in -self.radius..=self.radius {
-                    let v = f64::from(s.bilinear(c[0] + f64::from(dx), y));
-                    let o = &self.op[k];
-                    for (ci, oi) in coef.iter_mut().zip(o) {
-                        *ci += oi * v;
-                    }
-                    k += 1;
-                }
-            }
+            let coef = self.fit(s, c);
             let hess = Matrix2::new(2.0 * coef[3], coef[4], coef[4], 2.0 * coef[5]);
             let det = hess.determinant();
             // A saddle has eigenvalues of opposite signs.
