@@ -1,0 +1,213 @@
+//! 2-D real FFTs on `f32` planes, built from `realfft` 1-D transforms, with cached plans.
+//!
+//! Rows use real-to-complex transforms (half the work of complex ones). The columns of the
+//! half spectrum are complex; caliper-core only links `realfft`, so a complex column transform of
+//! `z = a + ib` is assembled from two real transforms, `Z = A + iB` with `A`, `B` extended to the
+//! full length by Hermitian symmetry — the same flop count as one complex FFT. The inverse uses
+//! `IFFT(z) = conj(FFT(conj(z)))`.
+//!
+//! Spectra are stored column-major (`spec[c * height + k]`, `c < width / 2 + 1`) so that the column
+//! passes work on contiguous memory; pointwise filters do not care about the layout as long as
+//! every spectrum comes from the same [`Fft2`].
+
+use std::sync::{Arc, Mutex, OnceLock};
+
+use rayon::prelude::*;
+use realfft::num_complex::Complex;
+use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
+
+/// Complex sample type of the spectra.
+pub type C32 = Complex<f32>;
+
+/// The process-wide planner: `RealFftPlanner` memoises plans (and their twiddle tables) per
+/// length, so repeated deconvolutions at one size plan only once.
+fn planner() -> &'static Mutex<RealFftPlanner<f32>> {
+    static PLANNER: OnceLock<Mutex<RealFftPlanner<f32>>> = OnceLock::new();
+    PLANNER.get_or_init(|| Mutex::new(RealFftPlanner::new()))
+}
+
+/// Whether `n` has no prime factor above 7: the lengths rustfft handles with its fastest
+/// mixed-radix butterflies (a large prime length falls back to Bluestein, several times slower).
+pub fn is_smooth(mut n: usize) -> bool {
+    if n == 0 {
+        return false;
+    }
+    for p in [2, 3, 5, 7] {
+        while n.is_multiple_of(p) {
+            n /= p;
+        }
+    }
+    n == 1
+}
+
+/// Smallest even 7-smooth length ≥ `n` (even so the real transforms take their fast path).
+pub fn fast_len(n: usize) -> usize {
+    let mut m = n.max(2);
+    while !m.is_multiple_of(2) || !is_smooth(m) {
+        m += 1;
+    }
+    m
+}
+
+/// A 2-D real FFT of a fixed `height × width`.
+#[derive(Clone)]
+pub struct Fft2 {
+    /// Rows.
+    pub height: usize,
+    /// Columns.
+    pub width: usize,
+    row_fwd: Arc<dyn RealToComplex<f32>>,
+    row_inv: Arc<dyn ComplexToReal<f32>>,
+    col_fwd: Arc<dyn RealToComplex<f32>>,
+}
+
+impl Fft2 {
+    /// Plans (or fetches cached plans) for `height × width`.
+    pub fn new(height: usize, width: usize) -> Self {
+        let mut p = planner().lock().unwrap_or_else(|e| e.into_inner());
+        Self {
+            height,
+            width,
+            row_fwd: p.plan_fft_forward(width),
+            row_inv: p.plan_fft_inverse(width),
+            col_fwd: p.plan_fft_forward(height),
+        }
+    }
+
+    /// Number of complex columns of the half spectrum.
+    pub fn spec_width(&self) -> usize {
+        self.width / 2 + 1
+    }
+
+    /// Length of a spectrum buffer.
+    pub fn spec_len(&self) -> usize {
+        self.spec_width() * self.height
+    }
+
+    /// Unnormalised forward transform of a row-major `height × width` plane.
+    pub fn forward(&self, input: &[f32]) -> Vec<C32> {
+        let (h, w, wc) = (self.height, self.width, self.spec_width());
+        debug_assert_eq!(input.len(), h * w);
+        let mut rows = vec![C32::new(0.0, 0.0); h * wc];
+        rows.par_chunks_mut(wc).enumerate().for_each_init(
+            || (vec![0.0f32; w], self.row_fwd.make_scratch_vec()),
+            |(buf, scratch), (r, out)| {
+                buf.copy_from_slice(&input[r * w..(r + 1) * w]);
+                // Lengths are right by construction; realfft only errs on wrong lengths.
+                let _ = self.row_fwd.process_with_scratch(buf, out, scratch);
+            },
+        );
+        let mut spec = vec![C32::new(0.0, 0.0); h * wc];
+        spec.par_chunks_mut(h).enumerate().for_each_init(
+            || ColScratch::new(&self.col_fwd, h),
+            |s, (c, out)| {
+                for (k, v) in rows.iter().skip(c).step_by(wc).enumerate() {
+                    s.re[k] = v.re;
+                    s.im[k] = v.im;
+                }
+                s.complex_fft(&self.col_fwd, out, false);
+            },
+        );
+        spec
+    }
+
+    /// Unnormalised inverse transform (the result is `height · width` times the signal).
+    pub fn inverse(&self, spec: &[C32]) -> Vec<f32> {
+        let (h, w, wc) = (self.height, self.width, self.spec_width());
+        debug_assert_eq!(spec.len(), h * wc);
+        let mut cols = vec![C32::new(0.0, 0.0); h * wc];
+        cols.par_chunks_mut(h).enumerate().for_each_init(
+            || ColScratch::new(&self.col_fwd, h),
+            |s, (c, out)| {
+                // IFFT(z) = conj(FFT(conj z)).
+                for (k, v) in spec[c * h..(c + 1) * h].iter().enumerate() {
+                    s.re[k] = v.re;
+                    s.im[k] = -v.im;
+                }
+                s.complex_fft(&self.col_fwd, out, true);
+            },
+        );
+        let mut out = vec![0.0f32; h * w];
+        out.par_chunks_mut(w).enumerate().for_each_init(
+            || {
+                (
+                    vec![C32::new(0.0, 0.0); wc],
+                    self.row_inv.make_scratch_vec(),
+                )
+            },
+            |(buf, scratch), (r, row)| {
+                for (c, b) in buf.iter_mut().enumerate() {
+                    *b = cols[c * h + r];
+                }
+                // The DC (and, for even widths, Nyquist) bins of a real signal are real; round-off
+                // leaves a tiny imaginary part that realfft would flag, so drop it.
+                buf[0].im = 0.0;
+                if w.is_multiple_of(2) {
+                    buf[wc - 1].im = 0.0;
+                }
+                let _ = self.row_inv.process_with_scratch(buf, row, scratch);
+            },
+        );
+        out
+    }
+
+    /// Spectrum of a kernel centred on the FFT origin (so that multiplying by it convolves
+    /// without shifting): the kernel centre goes to (0, 0) and the rest wraps around.
+    pub fn kernel_spectrum(
+        &self,
+        kw: usize,
+        kh: usize,
+        k: impl Fn(usize, usize) -> f64,
+    ) -> Vec<C32> {
+        let (h, w) = (self.height, self.width);
+        let mut plane = vec![0.0f32; h * w];
+        let (cx, cy) = (kw / 2, kh / 2);
+        for y in 0..kh {
+            for x in 0..kw {
+                let py = (y + h - cy) % h;
+                let px = (x + w - cx) % w;
+                plane[py * w + px] += k(x, y) as f32;
+            }
+        }
+        self.forward(&plane)
+    }
+}
+
+/// Per-thread buffers for one complex column transform.
+struct ColScratch {
+    re: Vec<f32>,
+    im: Vec<f32>,
+    a: Vec<C32>,
+    b: Vec<C32>,
+    scratch: Vec<C32>,
+}
+
+impl ColScratch {
+    fn new(plan: &Arc<dyn RealToComplex<f32>>, h: usize) -> Self {
+        Self {
+            re: vec![0.0; h],
+            im: vec![0.0; h],
+            a: plan.make_output_vec(),
+            b: plan.make_output_vec(),
+            scratch: plan.make_scratch_vec(),
+        }
+    }
+
+    /// `out = FFT(re + i·im)`, or its conjugate when `conj_out` (for the inverse).
+    fn complex_fft(&mut self, plan: &Arc<dyn RealToComplex<f32>>, out: &mut [C32], conj_out: bool) {
+        let h = out.len();
+        let _ = plan.process_with_scratch(&mut self.re, &mut self.a, &mut self.scratch);
+        let _ = plan.process_with_scratch(&mut self.im, &mut self.b, &mut self.scratch);
+        let half = h / 2;
+        for (k, o) in out.iter_mut().enumerate() {
+            let (a, b) = if k <= half {
+                (self.a[k], self.b[k])
+            } else {
+                (self.a[h - k].conj(), self.b[h - k].conj())
+            };
+            // a + i b
+            let z = C32::new(a.re - b.im, a.im + b.re);
+            *o = if conj_out { z.conj() } else { z };
+        }
+    }
+}

@@ -1,0 +1,167 @@
+//! Richardson-Lucy deconvolution with the unknown-boundary model of Bertero & Boccacci.
+
+use rayon::prelude::*;
+
+use super::fft::{C32, Fft2};
+use super::{PadLayout, Plane, Psf, check_inputs};
+use crate::error::{CoreError, CoreResult};
+use crate::progress::Progress;
+
+/// Largest accepted iteration count; RL gains little after a few hundred iterations and each one
+/// costs four image-sized FFTs.
+pub const MAX_RL_ITERATIONS: usize = 10_000;
+
+/// Weight of the total-variation term (Dey et al. 2006 recommend 0.002 for data in [0, 1]-like
+/// units). Unregularised RL converges to the maximum-likelihood image, which fits the noise: on
+/// camera-shake blur with σ = 0.01 PSNR peaks around 30 iterations and then slowly falls. This
+/// small TV term removes that slow decline without visibly flattening texture.
+const TV_WEIGHT: f32 = 0.002;
+
+/// Below this normalisation weight an object pixel is considered unseen by the data.
+const MIN_WEIGHT: f32 = 1e-3;
+
+/// Richardson-Lucy deconvolution (Richardson 1972, JOSA 62(1); Lucy 1974, AJ 79(6)) of `img`
+/// (values in `[0, 1]`) by `psf`, for `iterations` steps; result clipped to `[0, 1]`.
+///
+/// Boundaries follow M. Bertero and P. Boccacci, "A simple method for the reduction of boundary
+/// effects in the Richardson-Lucy approach to image deconvolution", A&A 437 (2005): the unknown
+/// object lives on a domain larger than the image by the kernel's half size, the forward model
+/// blurs it and keeps only the observed pixels (`y = M·(K ⊛ x)`), and the update is
+///
+/// `x ← x / w · Kᵀ(M·y / (K ⊛ x))`, with `w = Kᵀ M`.
+///
+/// Plain RL instead assumes something (zeros, periodicity) about the pixels beyond the border;
+/// the mismatch there is fitted ever harder with each iteration and spreads inwards as ringing,
+/// which is why scikit-image's RL gets worse with more iterations. Here there is no model error at
+/// the border, so iterations only trade resolution against noise. The multiplicative update keeps
+/// the estimate non-negative, and it conserves flux over the observed region.
+///
+/// Noise: the update is regularised by total variation as in N. Dey et al., "Richardson–Lucy
+/// algorithm with total variation regularization for 3D confocal microscope deconvolution",
+/// Microsc. Res. Tech. 69 (2006): the normaliser becomes `w − λ div(∇x/|∇x|)`, λ = 0.002, so
+/// more iterations do not amplify noise without bound.
+///
+/// The circular convolutions run on a 7-smooth FFT domain at least the image plus the kernel size,
+/// which is exactly enough for the wrap-around never to mix the two sides of the object domain.
+/// The start is the image mirrored into that domain. `progress.check()` runs every iteration.
+pub fn richardson_lucy(
+    img: &Plane,
+    psf: &Psf,
+    iterations: usize,
+    progress: &dyn Progress,
+) -> CoreResult<Plane> {
+    check_inputs(img, psf)?;
+    if iterations > MAX_RL_ITERATIONS {
+        return Err(CoreError::param(
+            "iterations",
+            format!("{iterations} iterations; at most {MAX_RL_ITERATIONS}"),
+        ));
+    }
+    let layout = PadLayout::new(img.height, img.width, psf.height / 2, psf.width / 2);
+    let fft = Fft2::new(layout.padded_height, layout.padded_width);
+    let kspec = fft.kernel_spectrum(psf.width, psf.height, |x, y| psf.at(x, y));
+    let scale = 1.0 / (fft.height * fft.width) as f32;
+    let conv = |plane: &[f32], adjoint: bool| -> Vec<f32> {
+        let mut spec = fft.forward(plane);
+        spec.par_iter_mut()
+            .zip(kspec.par_iter())
+            .for_each(|(s, k)| {
+                let k: C32 = if adjoint { k.conj() } else { *k };
+                *s = *s * k * scale;
+            });
+        fft.inverse(&spec)
+    };
+
+    let mask = layout.mask();
+    let data: Vec<f32> = layout
+        .pad_mirror(img)
+        .iter()
+        .zip(&mask)
+        .map(|(v, m)| v.max(0.0) * m)
+        .collect();
+    let weight = conv(&mask, true);
+    let support: Vec<bool> = weight.iter().map(|&w| w > MIN_WEIGHT).collect();
+    // Start from the mirrored image on the object domain, strictly positive so that no pixel is
+    // frozen at zero by the multiplicative update.
+    let mut x: Vec<f32> = layout
+        .pad_mirror(img)
+        .iter()
+        .zip(&support)
+        .map(|(&v, &s)| if s { v.max(1e-3) } else { 0.0 })
+        .collect();
+
+    for it in 0..iterations {
+        progress.check()?;
+        let blurred = conv(&x, false);
+        let ratio: Vec<f32> = data
+            .par_iter()
+            .zip(blurred.par_iter().zip(mask.par_iter()))
+            .map(|(&y, (&b, &m))| if m > 0.0 { y / b.max(1e-6) } else { 0.0 })
+            .collect();
+        let back = conv(&ratio, true);
+        let curv = tv_curvature(&x, &support, layout.padded_width);
+        x.par_iter_mut()
+            .zip(
+                back.par_iter()
+                    .zip(weight.par_iter().zip(support.par_iter())),
+            )
+            .zip(curv.par_iter())
+            .for_each(|((x, (&c, (&w, &s))), &k)| {
+                let den = (w - TV_WEIGHT * k).max(0.2 * w);
+                *x = if s {
+                    (*x * c.max(0.0) / den).max(0.0)
+                } else {
+                    0.0
+                };
+            });
+        progress.report("richardson_lucy", it as u64 + 1, iterations as u64);
+    }
+    let out = layout
+        .crop(&x)
+        .into_iter()
+        .map(|v| v.clamp(0.0, 1.0))
+        .collect();
+    Plane::new(img.width, img.height, out)
+}
+
+/// `div(∇x / |∇x|)` (forward differences for the gradient, backward for the divergence), with
+/// differences across the edge of the object domain treated as zero so that the domain's own
+/// border does not act as an edge.
+fn tv_curvature(x: &[f32], support: &[bool], width: usize) -> Vec<f32> {
+    const EPS: f32 = 1e-3;
+    let n = x.len();
+    let grad = |i: usize| -> (f32, f32) {
+        if !support[i] {
+            return (0.0, 0.0);
+        }
+        let gx = if !(i + 1).is_multiple_of(width) && support[i + 1] {
+            x[i + 1] - x[i]
+        } else {
+            0.0
+        };
+        let gy = if i + width < n && support[i + width] {
+            x[i + width] - x[i]
+        } else {
+            0.0
+        };
+        let m = (gx * gx + gy * gy + EPS * EPS).sqrt();
+        (gx / m, gy / m)
+    };
+    let units: Vec<(f32, f32)> = (0..n).into_par_iter().map(grad).collect();
+    (0..n)
+        .into_par_iter()
+        .map(|i| {
+            if !support[i] {
+                return 0.0;
+            }
+            let (ux, uy) = units[i];
+            let left = if !i.is_multiple_of(width) {
+                units[i - 1].0
+            } else {
+                0.0
+            };
+            let up = if i >= width { units[i - width].1 } else { 0.0 };
+            (ux - left) + (uy - up)
+        })
+        .collect()
+}

@@ -1,0 +1,140 @@
+//! Wiener deconvolution with a gradient (1/|ω|²) image prior on a padded, tapered domain.
+
+use rayon::prelude::*;
+
+use super::fft::{C32, Fft2};
+use super::{PadLayout, Plane, Psf, check_inputs};
+use crate::error::{CoreError, CoreResult};
+
+/// Noise standard deviation of `img` (same scale as its values), from the median absolute
+/// response to Immerkær's Laplacian-difference mask `[1 −2 1; −2 4 −2; 1 −2 1]`
+/// (J. Immerkær, "Fast noise variance estimation", CVIU 64(2), 1996).
+///
+/// The mask cancels locally linear content, so on a blurred image — which has little left at high
+/// frequencies — its output is almost pure noise with σ·6 spread; using the median instead of
+/// Immerkær's mean absolute value keeps the remaining edges from inflating the estimate.
+/// Returns 0 for images smaller than 3×3.
+pub fn estimate_noise_sigma(img: &Plane) -> f64 {
+    let (w, h) = (img.width, img.height);
+    if w < 3 || h < 3 {
+        return 0.0;
+    }
+    let mut r: Vec<f32> = (1..h - 1)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let (a, b, c) = (
+                &img.data[(y - 1) * w..y * w],
+                &img.data[y * w..(y + 1) * w],
+                &img.data[(y + 1) * w..(y + 2) * w],
+            );
+            (1..w - 1).map(move |x| {
+                let v = a[x - 1] - 2.0 * a[x] + a[x + 1] - 2.0 * (b[x - 1] - 2.0 * b[x] + b[x + 1])
+                    + c[x - 1]
+                    - 2.0 * c[x]
+                    + c[x + 1];
+                v.abs()
+            })
+        })
+        .collect();
+    let mid = r.len() / 2;
+    let (_, med, _) = r.select_nth_unstable_by(mid, f32::total_cmp);
+    // MAD of a normal variable is 0.6745 σ; the mask has ‖M‖₂ = 6.
+    f64::from(*med) / 0.674_489_75 / 6.0
+}
+
+/// Squared magnitude of the discrete gradient's frequency response, `|Dx|² + |Dy|²`
+/// (`2 − 2 cos ω` per axis), in the column-major half-spectrum layout of [`Fft2`].
+fn gradient_power(fft: &Fft2) -> Vec<f32> {
+    let (h, w) = (fft.height, fft.width);
+    let tau = std::f64::consts::TAU;
+    let mut out = Vec::with_capacity(fft.spec_len());
+    for c in 0..fft.spec_width() {
+        let dx = 2.0 - 2.0 * (tau * c as f64 / w as f64).cos();
+        for k in 0..h {
+            let dy = 2.0 - 2.0 * (tau * k as f64 / h as f64).cos();
+            out.push((dx + dy) as f32);
+        }
+    }
+    out
+}
+
+/// Wiener deconvolution of `img` (values in `[0, 1]`) by `psf`; result clipped to `[0, 1]`.
+///
+/// The filter is `X = K̄ Y / (|K|² + λ |D|²)` with `D` the discrete gradient: the Wiener filter
+/// for a sharp-image power spectrum `P(ω) = c / |D(ω)|²` (the 1/f² law of natural images, Field
+/// 1987; the gradient-prior form of Levin et al., "Image and depth from a conventional camera with a
+/// coded aperture", SIGGRAPH 2007) and white noise of variance σ², with `λ = σ² / c`. Compared with
+/// a flat noise-to-signal ratio it leaves the mean and the low frequencies untouched and
+/// regularises most where noise dominates, which is worth several dB on natural images.
+///
+/// `nsr` is that `λ`: the noise variance over the sharp image's mean squared gradient. When `None`
+/// it is estimated: σ by [`estimate_noise_sigma`], and `c` from the blurred image's gradient
+/// power, which by Parseval equals `c·Σk² + 4σ²` under the model.
+///
+/// Boundaries: the image is mirror-padded by twice the kernel size (at least 16 px), tapered to
+/// its mean, grown to a 7-smooth FFT size, filtered, and cropped back ([`PadLayout`]).
+pub fn wiener(img: &Plane, psf: &Psf, nsr: Option<f64>) -> CoreResult<Plane> {
+    check_inputs(img, psf)?;
+    let lambda = match nsr {
+        Some(v) if v.is_finite() && v >= 0.0 => v,
+        Some(v) => {
+            return Err(CoreError::param(
+                "nsr",
+                format!("noise-to-signal ratio {v} must be finite and ≥ 0"),
+            ));
+        }
+        None => estimate_nsr(img, psf),
+    };
+    let layout = PadLayout::new(
+        img.height,
+        img.width,
+        (2 * psf.height).max(16),
+        (2 * psf.width).max(16),
+    );
+    let padded = layout.pad_tapered(img);
+    let fft = Fft2::new(layout.padded_height, layout.padded_width);
+    let kspec = fft.kernel_spectrum(psf.width, psf.height, |x, y| psf.at(x, y));
+    let mut spec = fft.forward(&padded);
+    let reg = gradient_power(&fft);
+    let scale = 1.0 / (fft.height * fft.width) as f32;
+    let lambda = lambda as f32;
+    spec.par_iter_mut()
+        .zip(kspec.par_iter().zip(reg.par_iter()))
+        .for_each(|(y, (k, r))| {
+            let den = k.norm_sqr() + lambda * r;
+            *y = if den > 1e-12 {
+                k.conj() * *y * (scale / den)
+            } else {
+                C32::new(0.0, 0.0)
+            };
+        });
+    let out = fft.inverse(&spec);
+    let data = layout
+        .crop(&out)
+        .into_iter()
+        .map(|v| v.clamp(0.0, 1.0))
+        .collect();
+    Plane::new(img.width, img.height, data)
+}
+
+/// `λ = σ² / c` from the image (see [`wiener`]). Floors keep it usable on noiseless synthetic
+/// input (8-bit quantisation alone is σ ≈ 0.0011) and on flat images.
+fn estimate_nsr(img: &Plane, psf: &Psf) -> f64 {
+    let sigma = estimate_noise_sigma(img).max(0.5 / 255.0);
+    let (w, h) = (img.width, img.height);
+    let mut g2 = 0.0f64;
+    let mut n = 0usize;
+    for y in 0..h.saturating_sub(1) {
+        for x in 0..w.saturating_sub(1) {
+            let v = img.at(x, y);
+            let dx = f64::from(img.at(x + 1, y) - v);
+            let dy = f64::from(img.at(x, y + 1) - v);
+            g2 += dx * dx + dy * dy;
+            n += 1;
+        }
+    }
+    let g2 = if n > 0 { g2 / n as f64 } else { 0.0 };
+    let k2: f64 = psf.data.iter().map(|v| v * v).sum();
+    let c = ((g2 - 4.0 * sigma * sigma) / k2).max(1e-6);
+    sigma * sigma / c
+}
