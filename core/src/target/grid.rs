@@ -2,14 +2,15 @@
 //!
 //! Each empty grid position next to the grown grid gets a predicted pixel position from the
 //! accepted corners around it: quadratic extrapolation along a row or column when three
-//! corners are known (exact for the spacing of a projectively foreshortened row to second
-//! order, and follows the curvature of fisheye rows), linear with two, and the parallelogram
-//! rule from a diagonal neighbourhood otherwise. Predictions are local, so the grid can bend
-//! arbitrarily over the whole board. The nearest candidate within 0.45 of the local spacing is
-//! accepted if the four squares around it have the expected colours (dark diagonal / bright
-//! diagonal, alternating with the parity of the position). When no candidate is there (a
-//! corner lost to blur or glare), a saddle fit is run from the prediction and its result must
-//! pass the same X-junction and colour tests.
+//! corners are known (follows the curvature of fisheye rows; a shrinking step is rescaled by
+//! the cross-ratio, exact under perspective foreshortening), linear with two, and the
+//! parallelogram rule from a diagonal neighbourhood otherwise. Predictions are local, so the
+//! grid can bend arbitrarily over the whole board. The nearest candidate within 0.45 of the
+//! local spacing is accepted if the four squares around it have the expected colours (dark
+//! diagonal / bright diagonal, alternating with the parity of the position). When no candidate
+//! is there (a corner lost to blur or glare), a saddle fit is run from the prediction and its
+//! result must pass the same X-junction and colour tests. A position that failed is retried
+//! once more corners are known along its row and column (a better prediction).
 
 use std::collections::{BTreeMap, HashMap};
 
@@ -236,8 +237,20 @@ impl GrowCtx<'_> {
         nodes.insert((0, 1), seed[2]);
         nodes.insert((1, 1), seed[3]);
         let mut used: Vec<usize> = seed.iter().filter_map(|n| n.cand).collect();
-        // Positions that failed, with the number of neighbours they had then.
+        // Positions that failed, with their support then: the known corners along the four
+        // rows and columns through them, up to three positions away (what the extrapolation
+        // uses). They are retried when it grows (a better prediction).
         let mut failed: HashMap<Pos, usize> = HashMap::new();
+        let support = |nodes: &HashMap<Pos, Node>, q: Pos| -> usize {
+            [(1, 0), (-1, 0), (0, 1), (0, -1)]
+                .into_iter()
+                .map(|(di, dj)| {
+                    (1..=3)
+                        .take_while(|&k| nodes.contains_key(&(q.0 + k * di, q.1 + k * dj)))
+                        .count()
+                })
+                .sum()
+        };
         let mut extent = (0i32, 0i32, 1i32, 1i32);
         loop {
             let mut frontier: BTreeMap<Pos, usize> = BTreeMap::new();
@@ -251,7 +264,7 @@ impl GrowCtx<'_> {
             }
             let mut order: Vec<(Pos, usize)> = frontier
                 .into_iter()
-                .filter(|(q, n)| failed.get(q).is_none_or(|f| n > f))
+                .filter(|(q, _)| failed.get(q).is_none_or(|&f| support(&nodes, *q) > f))
                 .collect();
             if order.is_empty() {
                 break;
@@ -262,9 +275,9 @@ impl GrowCtx<'_> {
                     .then(a.0.0.cmp(&b.0.0))
             });
             let mut added = false;
-            for (q, n) in order {
+            for (q, _) in order {
                 let Some(node) = self.try_fill(&nodes, &used, q, pol) else {
-                    failed.insert(q, n);
+                    failed.insert(q, support(&nodes, q));
                     continue;
                 };
                 let e = (
@@ -321,10 +334,7 @@ impl GrowCtx<'_> {
             }
             if let (Some(a), Some(b)) = (a, b) {
                 match c {
-                    Some(c) => quad.push([
-                        3.0 * a[0] - 3.0 * b[0] + c[0],
-                        3.0 * a[1] - 3.0 * b[1] + c[1],
-                    ]),
+                    Some(c) => quad.push(extrapolate3(a, b, c)),
                     None => lin.push([2.0 * a[0] - b[0], 2.0 * a[1] - b[1]]),
                 }
             }
@@ -472,6 +482,31 @@ impl GrowCtx<'_> {
         let lines = x_junction(self.s, p, self.x_radius.min(0.3 * step), self.min_contrast)?;
         accept(p, lines).then_some(Node { p, cand: None })
     }
+}
+
+/// The corner after `c, b, a` (consecutive corners of a row or column, `a` last).
+///
+/// Quadratic extrapolation `3a − 3b + c` follows the curvature of fisheye rows, but under
+/// strong foreshortening it underestimates how fast the spacing shrinks (at squares of a few
+/// pixels its prediction lands half a square off). For a shrinking spacing the step is
+/// therefore rescaled to the length that the cross-ratio of four equally spaced points on a
+/// line gives (exact under perspective): with `d₁ = |b − c|`, `d₂ = |a − b|`,
+/// `d₃ = d₂(d₁ + d₂)/(3d₁ − d₂)`. A growing spacing keeps the quadratic step: there, fisheye
+/// compression towards the image border counteracts the perspective growth.
+fn extrapolate3(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> [f64; 2] {
+    let q = [
+        3.0 * a[0] - 3.0 * b[0] + c[0],
+        3.0 * a[1] - 3.0 * b[1] + c[1],
+    ];
+    let (d1, d2) = (norm(sub(b, c)), norm(sub(a, b)));
+    let step = sub(q, a);
+    let l = norm(step);
+    if d2 >= d1 || l <= 0.0 {
+        return q;
+    }
+    let d3 = d2 * (d1 + d2) / (3.0 * d1 - d2);
+    let f = d3 / l;
+    [a[0] + f * step[0], a[1] + f * step[1]]
 }
 
 /// The outcome of [`trim`].

@@ -527,15 +527,9 @@ fn shared_boofcv_fisheye() {
         cal.camera.params(),
         cal.rejected_views
     );
-    // Target: 26/26. 26.jpg (the far end of the board, squares of ~8 px under strong
-    // foreshortening) is still missed; keep this from regressing further.
-    if obs.len() < 26 {
-        println!(
-            "!!!!! fisheye: {}/26 boards found (target 26) !!!!!",
-            obs.len()
-        );
-    }
-    assert!(obs.len() >= 25);
+    // All 26, including 26.jpg (the far end of the board, squares of ~8 px under strong
+    // foreshortening).
+    assert_eq!(obs.len(), 26);
     assert!(cal.rejected_views.is_empty());
     assert!(cal.rms <= 0.71, "rms {}", cal.rms);
 }
