@@ -127,5 +127,14 @@ async fn imu_jobs_fail_clearly_on_unsuitable_logs() {
         .await;
     assert_eq!(st, 422, "{p}");
     assert_eq!(p["field"], "params.rate_hz");
+    // Out-of-range values too.
+    let (st, p) = s
+        .post_json(
+            "/v1/jobs",
+            &json!({"kind": "imu_noise", "dataset": ds, "params": {"taus_per_octave": 0}}),
+        )
+        .await;
+    assert_eq!(st, 422, "{p}");
+    assert_eq!(p["code"], "invalid_param");
     s.stop().await;
 }

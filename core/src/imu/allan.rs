@@ -80,7 +80,8 @@ impl Default for ImuNoiseParams {
 }
 
 impl ImuNoiseParams {
-    fn validate(&self) -> CoreResult<()> {
+    /// Check the parameters (the service does so before queueing a job).
+    pub fn validate(&self) -> CoreResult<()> {
         if !(1..=16).contains(&self.taus_per_octave) {
             return Err(CoreError::param("taus_per_octave", "must be within 1..=16"));
         }

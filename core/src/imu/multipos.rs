@@ -246,6 +246,13 @@ pub fn imu_intrinsics(
     imu_intrinsics_from_log(&log, params, progress)
 }
 
+impl ImuIntrinsicsParams {
+    /// Check the parameters (the service does so before queueing a job).
+    pub fn validate(&self) -> CoreResult<()> {
+        validate(self)
+    }
+}
+
 fn validate(p: &ImuIntrinsicsParams) -> CoreResult<()> {
     if !(p.gravity_m_s2.is_finite() && p.gravity_m_s2 > 0.0) {
         return Err(CoreError::param("gravity_m_s2", "must be > 0"));

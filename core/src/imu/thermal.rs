@@ -131,6 +131,13 @@ pub fn imu_thermal(
     imu_thermal_from_log(&log, params, progress)
 }
 
+impl ImuThermalParams {
+    /// Check the parameters (the service does so before queueing a job).
+    pub fn validate(&self) -> CoreResult<()> {
+        validate(self)
+    }
+}
+
 fn validate(p: &ImuThermalParams) -> CoreResult<()> {
     if p.degree > 6 {
         return Err(CoreError::param("degree", "must be within 0..=6"));

@@ -12,7 +12,9 @@ use caliper_core::imu::{
 };
 use serde_json::{Value, json};
 
-use super::{Artifact, JobError, JobInput, JobKind, JobOutput, normalize_as, stored_params};
+use super::{
+    Artifact, JobError, JobInput, JobKind, JobOutput, param_error, parse_params, stored_params,
+};
 use crate::error::ApiError;
 use crate::store::DatasetKind;
 
@@ -63,7 +65,9 @@ impl JobKind for ImuNoise {
         schema_of::<ImuNoiseParams>()
     }
     fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
-        normalize_as::<ImuNoiseParams>(params)
+        let p: ImuNoiseParams = parse_params(params)?;
+        p.validate().map_err(param_error)?;
+        serde_json::to_value(&p).map_err(ApiError::internal)
     }
     fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
         let p: ImuNoiseParams = stored_params(&input.params)?;
@@ -103,7 +107,9 @@ impl JobKind for ImuIntrinsics {
         schema_of::<ImuIntrinsicsParams>()
     }
     fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
-        normalize_as::<ImuIntrinsicsParams>(params)
+        let p: ImuIntrinsicsParams = parse_params(params)?;
+        p.validate().map_err(param_error)?;
+        serde_json::to_value(&p).map_err(ApiError::internal)
     }
     fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
         let p: ImuIntrinsicsParams = stored_params(&input.params)?;
@@ -142,7 +148,9 @@ impl JobKind for ImuThermal {
         schema_of::<ImuThermalParams>()
     }
     fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
-        normalize_as::<ImuThermalParams>(params)
+        let p: ImuThermalParams = parse_params(params)?;
+        p.validate().map_err(param_error)?;
+        serde_json::to_value(&p).map_err(ApiError::internal)
     }
     fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
         let p: ImuThermalParams = stored_params(&input.params)?;

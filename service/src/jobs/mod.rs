@@ -146,14 +146,6 @@ pub fn parse_params<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T,
     })
 }
 
-/// Parse parameters (defaults filled in, unknown fields refused) and return their normal form.
-pub fn normalize_as<T: serde::de::DeserializeOwned + serde::Serialize>(
-    params: &Value,
-) -> Result<Value, ApiError> {
-    let p: T = parse_params(params)?;
-    serde_json::to_value(&p).map_err(ApiError::internal)
-}
-
 /// Read the normalised parameters stored on a job.
 pub fn stored_params<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T, JobError> {
     serde_json::from_value(params.clone()).map_err(|e| JobError::Permanent {
