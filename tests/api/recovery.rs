@@ -15,6 +15,14 @@ struct Proc {
     base: String,
 }
 
+/// A failing assertion must not leave a server running.
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
 fn spawn(bin: &PathBuf, data: &std::path::Path) -> Proc {
     let mut child = Command::new(bin)
         .args([
