@@ -12,18 +12,8 @@ use caliper_core::NoProgress;
 use caliper_core::blur::{BlurParams, laplacian_variance, score_images, svd_beta};
 use caliper_core::io::{ImageLimits, decode_gray8};
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
+mod common;
+use common::median;
 
 /// Median wall time in ms of `runs` calls, and the last result.
 fn timed<T>(runs: usize, mut f: impl FnMut() -> T) -> (T, f64) {

@@ -26,18 +26,8 @@ use caliper_core::synth::{blur_gray, motion_blur_gray};
 use caliper_core::target::{DetectOptions, Detection, detect_chessboard};
 use rayon::prelude::*;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
+mod common;
+use common::median;
 
 fn data_dir() -> Option<PathBuf> {
     let candidates = [

@@ -17,17 +17,8 @@ use caliper_core::imu::{
     ImuCsvParams, ImuNoiseParams, imu_noise, imu_noise_from_log, read_imu_log,
 };
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        f64::NAN
-    } else if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
+mod common;
+use common::median;
 
 fn vm_hwm_mib() -> f64 {
     std::fs::read_to_string("/proc/self/status")

@@ -882,17 +882,7 @@ fn fast_line(text: &[u8], mut pos: usize, lay: &Layout, slot_of: &[u8]) -> Optio
                 }
                 if pos < n && (text[pos] | 0x20) == b'e' {
                     pos += 1;
-                    let eneg = match text.get(pos) {
-                        Some(b'-') => {
-                            pos += 1;
-                            true
-                        }
-                        Some(b'+') => {
-                            pos += 1;
-                            false
-                        }
-                        _ => false,
-                    };
+                    let eneg = take_sign(text, &mut pos);
                     let mut e: i32 = 0;
                     let mut ed = 0;
                     while pos < n && ed < 4 {
@@ -1140,17 +1130,7 @@ fn decimal(s: &[u8]) -> Option<(bool, u64, i32, u32)> {
     }
     if i < n && (s[i] == b'e' || s[i] == b'E') {
         i += 1;
-        let eneg = match s.get(i) {
-            Some(b'-') => {
-                i += 1;
-                true
-            }
-            Some(b'+') => {
-                i += 1;
-                false
-            }
-            _ => false,
-        };
+        let eneg = take_sign(s, &mut i);
         let mut e: i32 = 0;
         let mut ed = false;
         while i < n && s[i].is_ascii_digit() {
@@ -1452,5 +1432,21 @@ impl Accum {
             data: self.data,
             temperature: if has_temp { Some(self.temp) } else { None },
         })
+    }
+}
+
+/// Consume an optional `+`/`-` at `*pos` (of an exponent); true for `-`.
+#[inline]
+fn take_sign(s: &[u8], pos: &mut usize) -> bool {
+    match s.get(*pos) {
+        Some(b'-') => {
+            *pos += 1;
+            true
+        }
+        Some(b'+') => {
+            *pos += 1;
+            false
+        }
+        _ => false,
     }
 }
