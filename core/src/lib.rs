@@ -12,6 +12,7 @@ pub mod imu;
 pub mod io;
 pub mod lie;
 pub mod optim;
+pub mod photometric;
 pub mod progress;
 pub mod synth;
 pub mod target;

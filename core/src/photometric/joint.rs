@@ -1,0 +1,348 @@
+//! The joint photometric least-squares problem shared by the bracketed and the online fits.
+//!
+//! Each observation is one pixel value `O` of scene point `i` in frame `k` at normalised radius
+//! `r`: `O = f(e_k · V(r) · L_i)` (Bergmann, Wang & Cremers, "Online Photometric Calibration of
+//! Auto Exposure Video for Realtime Visual Odometry and SLAM", RA-L 2017, eq. 1; the same image
+//! formation as DSO, Engel, Koltun & Cremers, PAMI 2018). Unknowns: the EMoR coefficients `c`,
+//! the vignetting polynomial `v`, the log exposures and the log radiances. Levenberg-Marquardt
+//! on the Huber cost; the radiances form a block-diagonal part that is eliminated with the
+//! Schur complement, so each iteration solves only a (4 + 3 + frames)-sized dense system.
+//!
+//! Gauge: exposure 0 is fixed at 1 (log 0). With unknown exposures the γ ambiguity
+//! (`f(x^{1/γ})`, `V^γ`, `e^γ`, `L^γ` explain the same images) is fixed by the constraint
+//! `f(0.5) = gamma_gauge` (`f⁻¹(m) = 0.5`), added as a stiff residual; monotonicity of `f` is a
+//! stiff one-sided penalty on every basis segment.
+
+use nalgebra::{DMatrix, DVector};
+
+use super::emor::{EMOR_DIM, EMOR_SAMPLES, emor_basis};
+use super::response::emor_eval;
+use crate::error::{CoreError, CoreResult};
+use crate::progress::Progress;
+
+/// One measured intensity.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Obs {
+    pub point: u32,
+    pub frame: u32,
+    /// Squared normalised radius (vignetting argument).
+    pub r2: f32,
+    /// Normalised intensity in `[0, 1]`.
+    pub value: f32,
+    /// Confidence weight (0..1).
+    pub weight: f32,
+}
+
+/// What is free and how the cost looks.
+#[derive(Debug, Clone)]
+pub(crate) struct JointConfig {
+    pub fit_response: bool,
+    pub fit_vignette: bool,
+    pub fit_exposures: bool,
+    /// `Some(m)`: enforce `f(0.5) = m`.
+    pub gamma_gauge: Option<f64>,
+    /// Huber threshold in normalised intensity.
+    pub huber: f64,
+    pub max_iterations: usize,
+}
+
+/// Current estimate.
+#[derive(Debug, Clone)]
+pub(crate) struct JointState {
+    pub c: [f64; EMOR_DIM],
+    pub v: [f64; 3],
+    pub log_e: Vec<f64>,
+    pub log_l: Vec<f64>,
+}
+
+/// How the refinement went.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct JointReport {
+    pub iterations: usize,
+    pub converged: bool,
+    /// Unweighted RMS of the residuals of the inliers (|r| ≤ 3·huber), normalised intensity.
+    pub rms: f64,
+    pub inliers: usize,
+}
+
+/// Step below which an EMoR segment counts as non-increasing (per sample of the basis grid).
+const MONO_EPS: f64 = 1e-5;
+
+struct Layout {
+    nc: usize,
+    nv: usize,
+    ne: usize,
+}
+
+impl Layout {
+    fn dim(&self) -> usize {
+        self.nc + self.nv + self.ne
+    }
+    fn e_index(&self, frame: u32) -> Option<usize> {
+        (self.ne > 0 && frame > 0).then(|| self.nc + self.nv + frame as usize - 1)
+    }
+}
+
+fn vignette(v: &[f64; 3], r2: f64) -> f64 {
+    (1.0 + r2 * (v[0] + r2 * (v[1] + r2 * v[2]))).max(1e-3)
+}
+
+fn huber_rho(r: f64, k: f64) -> f64 {
+    let a = r.abs();
+    if a <= k { r * r } else { 2.0 * k * a - k * k }
+}
+
+/// Penalty residuals that act on `c` only: the γ gauge and monotonicity. Returns
+/// `(residual, ∂f/∂c)` pairs for `r = target − f`.
+fn c_penalties(cfg: &JointConfig, curve: &[f64]) -> Vec<(f64, [f64; EMOR_DIM])> {
+    let b = emor_basis();
+    let mut out = Vec::new();
+    if let Some(m) = cfg.gamma_gauge {
+        let ev = emor_eval(curve, 0.5);
+        out.push((m - ev.f, ev.dc));
+    }
+    for j in 0..EMOR_SAMPLES - 1 {
+        let d = curve[j + 1] - curve[j];
+        if d < MONO_EPS {
+            let mut dc = [0.0; EMOR_DIM];
+            for (k, x) in dc.iter_mut().enumerate() {
+                *x = b.h[k][j + 1] - b.h[k][j];
+            }
+            out.push((MONO_EPS - d, dc));
+        }
+    }
+    out
+}
+
+fn total_cost(obs: &[Obs], cfg: &JointConfig, s: &JointState, wpen: f64) -> f64 {
+    let curve = emor_basis().curve(&s.c);
+    let mut cost = 0.0;
+    for o in obs {
+        let e = s.log_e[o.frame as usize].exp()
+            * vignette(&s.v, f64::from(o.r2))
+            * s.log_l[o.point as usize].exp();
+        let r = f64::from(o.value) - emor_eval(&curve, e).f;
+        cost += f64::from(o.weight) * huber_rho(r, cfg.huber);
+    }
+    if cfg.fit_response {
+        for (r, _) in c_penalties(cfg, &curve) {
+            cost += wpen * r * r;
+        }
+    }
+    cost
+}
+
+/// Levenberg-Marquardt on the joint problem. `obs` must be sorted by point.
+pub(crate) fn refine(
+    obs: &[Obs],
+    cfg: &JointConfig,
+    state: &mut JointState,
+    progress: &dyn Progress,
+) -> CoreResult<JointReport> {
+    let n_frames = state.log_e.len();
+    let lay = Layout {
+        nc: if cfg.fit_response { EMOR_DIM } else { 0 },
+        nv: if cfg.fit_vignette { 3 } else { 0 },
+        ne: if cfg.fit_exposures {
+            n_frames.saturating_sub(1)
+        } else {
+            0
+        },
+    };
+    let dim = lay.dim();
+    let wsum: f64 = obs
+        .iter()
+        .map(|o| f64::from(o.weight))
+        .sum::<f64>()
+        .max(1.0);
+    // Stiff enough to hold the gauge and monotonicity to ~1e-4 against the data term.
+    let wpen = 1e3 * wsum;
+    let mut lambda = 1e-3;
+    let mut cost = total_cost(obs, cfg, state, wpen);
+    let mut report = JointReport::default();
+    // Point ranges.
+    let mut ranges = Vec::new();
+    let mut start = 0;
+    for i in 1..=obs.len() {
+        if i == obs.len() || obs[i].point != obs[start].point {
+            ranges.push(start..i);
+            start = i;
+        }
+    }
+    let mut scratch = vec![0.0; dim];
+    let mut mark = vec![false; dim];
+    let mut touched: Vec<usize> = Vec::new();
+    for it in 0..cfg.max_iterations {
+        progress.check()?;
+        progress.report("refine", it as u64, cfg.max_iterations as u64);
+        report.iterations = it + 1;
+        let curve = emor_basis().curve(&state.c);
+        let mut h = DMatrix::<f64>::zeros(dim, dim);
+        let mut g = DVector::<f64>::zeros(dim);
+        // Per point: (hl, bl, cross terms) for back-substitution.
+        let mut point_blocks: Vec<(f64, f64, Vec<(usize, f64)>)> = Vec::with_capacity(ranges.len());
+        let mut hll_diag = Vec::with_capacity(ranges.len());
+        for rg in &ranges {
+            let pi = obs[rg.start].point as usize;
+            let l = state.log_l[pi].exp();
+            let (mut hl, mut bl) = (0.0, 0.0);
+            touched.clear();
+            for o in &obs[rg.clone()] {
+                let r2 = f64::from(o.r2);
+                let vg = vignette(&state.v, r2);
+                let e = state.log_e[o.frame as usize].exp() * vg * l;
+                let ev = emor_eval(&curve, e);
+                let r = f64::from(o.value) - ev.f;
+                let wh = if r.abs() <= cfg.huber {
+                    1.0
+                } else {
+                    cfg.huber / r.abs()
+                };
+                let w = f64::from(o.weight) * wh;
+                let de = ev.df * e;
+                let mut jac = [(0usize, 0.0f64); EMOR_DIM + 4];
+                let mut nj = 0;
+                for k in 0..lay.nc {
+                    jac[nj] = (k, ev.dc[k]);
+                    nj += 1;
+                }
+                let mut rp = r2;
+                for m in 0..lay.nv {
+                    jac[nj] = (lay.nc + m, de / vg * rp);
+                    nj += 1;
+                    rp *= r2;
+                }
+                if let Some(ei) = lay.e_index(o.frame) {
+                    jac[nj] = (ei, de);
+                    nj += 1;
+                }
+                for a in 0..nj {
+                    let (ia, ja) = jac[a];
+                    g[ia] += w * ja * r;
+                    for &(ib, jb) in &jac[a..nj] {
+                        h[(ia, ib)] += w * ja * jb;
+                    }
+                    if !mark[ia] {
+                        mark[ia] = true;
+                        touched.push(ia);
+                    }
+                    scratch[ia] += w * ja * de;
+                }
+                hl += w * de * de;
+                bl += w * de * r;
+            }
+            let cross: Vec<(usize, f64)> = touched.iter().map(|&i| (i, scratch[i])).collect();
+            for &i in &touched {
+                scratch[i] = 0.0;
+                mark[i] = false;
+            }
+            hll_diag.push(hl);
+            point_blocks.push((hl, bl, cross));
+        }
+        // Symmetrise the upper-triangle accumulation.
+        for a in 0..dim {
+            for b in 0..a {
+                h[(a, b)] = h[(b, a)];
+            }
+        }
+        if cfg.fit_response {
+            for (r, dc) in c_penalties(cfg, &curve) {
+                for a in 0..EMOR_DIM {
+                    g[a] += wpen * dc[a] * r;
+                    for b in 0..EMOR_DIM {
+                        h[(a, b)] += wpen * dc[a] * dc[b];
+                    }
+                }
+            }
+            for a in 0..EMOR_DIM {
+                h[(a, a)] += 1e-9 * wsum;
+            }
+        }
+        // Try steps with increasing damping until the cost drops.
+        let mut accepted = false;
+        for _ in 0..10 {
+            let mut s = h.clone();
+            let mut bs = g.clone();
+            for a in 0..dim {
+                s[(a, a)] += lambda * h[(a, a)].max(1e-12);
+            }
+            let mut dls = Vec::with_capacity(point_blocks.len());
+            for (hl, bl, cross) in &point_blocks {
+                let hd = hl * (1.0 + lambda) + 1e-12;
+                for &(a, xa) in cross {
+                    bs[a] -= xa * bl / hd;
+                    for &(b, xb) in cross {
+                        s[(a, b)] -= xa * xb / hd;
+                    }
+                }
+                dls.push(hd);
+            }
+            let Some(chol) = s.clone().cholesky() else {
+                lambda *= 10.0;
+                continue;
+            };
+            let dd = chol.solve(&bs);
+            let mut cand = state.clone();
+            for k in 0..lay.nc {
+                cand.c[k] += dd[k];
+            }
+            for m in 0..lay.nv {
+                cand.v[m] += dd[lay.nc + m];
+            }
+            for f in 1..n_frames {
+                if let Some(ei) = lay.e_index(f as u32) {
+                    cand.log_e[f] += dd[ei];
+                }
+            }
+            for (rg, ((_, bl, cross), hd)) in ranges.iter().zip(point_blocks.iter().zip(&dls)) {
+                let pi = obs[rg.start].point as usize;
+                let mut rhs = *bl;
+                for &(a, xa) in cross {
+                    rhs -= xa * dd[a];
+                }
+                cand.log_l[pi] += (rhs / hd).clamp(-2.0, 2.0);
+            }
+            let new_cost = total_cost(obs, cfg, &cand, wpen);
+            if new_cost.is_finite() && new_cost < cost {
+                let rel = (cost - new_cost) / cost.max(1e-30);
+                *state = cand;
+                cost = new_cost;
+                lambda = (lambda / 3.0).max(1e-9);
+                accepted = true;
+                if rel < 1e-7 {
+                    report.converged = true;
+                }
+                break;
+            }
+            lambda *= 4.0;
+        }
+        if !accepted || report.converged {
+            report.converged = true;
+            break;
+        }
+    }
+    if !cost.is_finite() {
+        return Err(CoreError::NoSolution(
+            "photometric refinement diverged".into(),
+        ));
+    }
+    let curve = emor_basis().curve(&state.c);
+    let (mut ss, mut n) = (0.0, 0usize);
+    for o in obs {
+        let e = state.log_e[o.frame as usize].exp()
+            * vignette(&state.v, f64::from(o.r2))
+            * state.log_l[o.point as usize].exp();
+        let r = f64::from(o.value) - emor_eval(&curve, e).f;
+        if r.abs() <= 3.0 * cfg.huber && o.weight > 0.0 {
+            ss += r * r;
+            n += 1;
+        }
+    }
+    report.rms = if n > 0 {
+        (ss / n as f64).sqrt()
+    } else {
+        f64::NAN
+    };
+    report.inliers = n;
+    Ok(report)
+}

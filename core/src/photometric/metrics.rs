@@ -1,0 +1,77 @@
+//! Accuracy measures against a reference calibration, with the gauge aligned.
+//!
+//! A photometric calibration from unknown exposures is only defined up to the γ ambiguity
+//! (`g^α`, `V^α`, `e^α` explain the same images) and an irradiance scale. These helpers
+//! compare curves the way the shared reference scores do: inverse responses min-max normalised
+//! over the 8-bit levels 1..254, then `α` chosen to minimise the response error and applied to
+//! the vignetting and exposures too.
+
+use super::response::InverseResponse;
+
+/// RMSE between two inverse responses, each normalised so that level 1 → 0 and 254 → 1,
+/// over levels 1..254.
+pub fn inverse_rmse(fit: &InverseResponse, truth: &InverseResponse) -> f64 {
+    rmse(&fit.normalized_1_254(), &truth.normalized_1_254())
+}
+
+fn rmse(a: &[f64], b: &[f64]) -> f64 {
+    (a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / a.len().max(1) as f64).sqrt()
+}
+
+fn pow_norm(g: &[f64], alpha: f64) -> Vec<f64> {
+    let p: Vec<f64> = g.iter().map(|v| v.max(0.0).powf(alpha)).collect();
+    let (a, b) = (p[0], p[p.len() - 1]);
+    p.iter().map(|v| (v - a) / (b - a).max(1e-300)).collect()
+}
+
+/// The exponent `α ∈ [0.1, 10]` that best maps `fit^α` onto `truth` (normalised inverse
+/// responses over levels 1..254, golden-section search on `ln α`), and the RMSE there.
+pub fn gamma_align(fit: &InverseResponse, truth: &InverseResponse) -> (f64, f64) {
+    let g = fit.resample(256).values;
+    let t = truth.normalized_1_254();
+    let err = |la: f64| rmse(&pow_norm(&g[1..=254], la.exp()), &t);
+    let (mut a, mut b) = (0.1f64.ln(), 10.0f64.ln());
+    let phi = 0.5 * (5f64.sqrt() - 1.0);
+    for _ in 0..80 {
+        let (c, d) = (b - phi * (b - a), a + phi * (b - a));
+        if err(c) < err(d) {
+            b = d;
+        } else {
+            a = c;
+        }
+    }
+    let la = 0.5 * (a + b);
+    (la.exp(), err(la))
+}
+
+/// RMSE between two attenuation maps after raising `fit` to `alpha` and normalising both to
+/// maximum 1.
+pub fn vignette_rmse(fit: &[f32], truth: &[f32], alpha: f64) -> f64 {
+    let f: Vec<f64> = fit
+        .iter()
+        .map(|&v| f64::from(v).max(0.0).powf(alpha))
+        .collect();
+    let fm = f.iter().copied().fold(0.0, f64::max).max(1e-300);
+    let tm = truth
+        .iter()
+        .map(|&v| f64::from(v))
+        .fold(0.0, f64::max)
+        .max(1e-300);
+    let a: Vec<f64> = f.iter().map(|v| v / fm).collect();
+    let b: Vec<f64> = truth.iter().map(|&v| f64::from(v) / tm).collect();
+    rmse(&a, &b)
+}
+
+/// RMS relative error (in %) of exposure ratios to frame 0 after raising `fit` to `alpha`.
+pub fn exposure_error_pct(fit: &[f64], truth: &[f64], alpha: f64) -> f64 {
+    if fit.is_empty() || fit.len() != truth.len() {
+        return f64::NAN;
+    }
+    let (f0, t0) = (fit[0], truth[0]);
+    let errs: Vec<f64> = fit
+        .iter()
+        .zip(truth)
+        .map(|(f, t)| (f / f0).powf(alpha) / (t / t0) - 1.0)
+        .collect();
+    100.0 * (errs.iter().map(|e| e * e).sum::<f64>() / errs.len() as f64).sqrt()
+}

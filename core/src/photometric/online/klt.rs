@@ -1,0 +1,224 @@
+//! Gain-robust KLT tracking on an image pyramid.
+//!
+//! Auto exposure changes the brightness of every frame, which breaks the brightness-constancy
+//! assumption of Lucas-Kanade. Following Kim, Frahm & Pollefeys ("Joint Feature Tracking and
+//! Radiometric Calibration from Auto-Exposed Video", ICCV 2007) and Kim & Pollefeys (PAMI
+//! 2008), each feature's patch is matched with an affine brightness change: we solve
+//! `J(q + x) ≈ α · T(x) + β` for the displacement, the gain α and the bias β by Gauss-Newton,
+//! coarse to fine. A forward-backward check rejects drifting tracks.
+
+/// One pyramid level: intensity and central-difference gradients.
+pub(crate) struct Level {
+    pub w: usize,
+    pub h: usize,
+    pub data: Vec<f32>,
+    pub gx: Vec<f32>,
+    pub gy: Vec<f32>,
+}
+
+impl Level {
+    fn new(w: usize, h: usize, data: Vec<f32>) -> Self {
+        let mut gx = vec![0.0; w * h];
+        let mut gy = vec![0.0; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                let (xl, xr) = (x.saturating_sub(1), (x + 1).min(w - 1));
+                let (yu, yd) = (y.saturating_sub(1), (y + 1).min(h - 1));
+                gx[i] = (data[y * w + xr] - data[y * w + xl]) / (xr - xl).max(1) as f32;
+                gy[i] = (data[yd * w + x] - data[yu * w + x]) / (yd - yu).max(1) as f32;
+            }
+        }
+        Self { w, h, data, gx, gy }
+    }
+
+    /// Bilinear sample of `buf` at `(x, y)`; `None` outside `[0, w−1] × [0, h−1]`.
+    #[inline]
+    pub fn sample(&self, buf: &[f32], x: f32, y: f32) -> Option<f32> {
+        if !(x >= 0.0 && y >= 0.0 && x <= (self.w - 1) as f32 && y <= (self.h - 1) as f32) {
+            return None;
+        }
+        let x0 = (x.floor() as usize).min(self.w.saturating_sub(2));
+        let y0 = (y.floor() as usize).min(self.h.saturating_sub(2));
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let i = y0 * self.w + x0;
+        let (a, b) = (buf[i], buf[i + 1]);
+        let (c, d) = (buf[i + self.w], buf[i + self.w + 1]);
+        Some((a + fx * (b - a)) * (1.0 - fy) + (c + fx * (d - c)) * fy)
+    }
+}
+
+/// A Gaussian-ish ([1 2 1]/4 separable) pyramid.
+pub(crate) struct Pyramid {
+    pub levels: Vec<Level>,
+}
+
+impl Pyramid {
+    pub fn new(w: usize, h: usize, data: Vec<f32>, n_levels: usize) -> Self {
+        let mut levels = vec![Level::new(w, h, data)];
+        while levels.len() < n_levels {
+            let Some(prev) = levels.last() else { break };
+            if prev.w < 16 || prev.h < 16 {
+                break;
+            }
+            let (nw, nh) = (prev.w / 2, prev.h / 2);
+            let mut d = vec![0.0f32; nw * nh];
+            let px = |x: isize, y: isize| -> f32 {
+                let xc = x.clamp(0, prev.w as isize - 1) as usize;
+                let yc = y.clamp(0, prev.h as isize - 1) as usize;
+                prev.data[yc * prev.w + xc]
+            };
+            for y in 0..nh {
+                for x in 0..nw {
+                    let (sx, sy) = (2 * x as isize, 2 * y as isize);
+                    let mut acc = 0.0;
+                    for (dy, wy) in [(-1, 1.0), (0, 2.0), (1, 1.0)] {
+                        for (dx, wx) in [(-1, 1.0), (0, 2.0), (1, 1.0)] {
+                            acc += wx * wy * px(sx + dx, sy + dy);
+                        }
+                    }
+                    d[y * nw + x] = acc / 16.0;
+                }
+            }
+            levels.push(Level::new(nw, nh, d));
+        }
+        Self { levels }
+    }
+}
+
+/// Tracker settings.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct KltConfig {
+    pub half_window: i32,
+    pub iterations: usize,
+    /// Largest accepted RMS of the brightness-compensated patch residual.
+    pub max_residual: f32,
+    /// Largest accepted forward-backward distance in pixels.
+    pub max_fb: f32,
+}
+
+/// Track one point from `a` to `b` (level-0 coordinates); returns the new position.
+fn track_one(
+    a: &Pyramid,
+    b: &Pyramid,
+    p: [f32; 2],
+    guess: [f32; 2],
+    cfg: &KltConfig,
+) -> Option<[f32; 2]> {
+    let nl = a.levels.len().min(b.levels.len());
+    let hw = cfg.half_window;
+    let npx = ((2 * hw + 1) * (2 * hw + 1)) as usize;
+    let mut d = [guess[0] - p[0], guess[1] - p[1]];
+    let (mut alpha, mut beta) = (1.0f32, 0.0f32);
+    let mut tmpl = vec![0.0f32; npx];
+    let mut last_rms = f32::INFINITY;
+    for l in (0..nl).rev() {
+        let s = 1.0 / (1u32 << l) as f32;
+        let (la, lb) = (&a.levels[l], &b.levels[l]);
+        let (px, py) = (p[0] * s, p[1] * s);
+        let mut k = 0;
+        for dy in -hw..=hw {
+            for dx in -hw..=hw {
+                tmpl[k] = la.sample(&la.data, px + dx as f32, py + dy as f32)?;
+                k += 1;
+            }
+        }
+        for _ in 0..cfg.iterations {
+            let (qx, qy) = (px + d[0] * s, py + d[1] * s);
+            let mut hm = [[0.0f64; 4]; 4];
+            let mut g = [0.0f64; 4];
+            let mut ss = 0.0f64;
+            let mut k = 0;
+            for dy in -hw..=hw {
+                for dx in -hw..=hw {
+                    let (x, y) = (qx + dx as f32, qy + dy as f32);
+                    let t = tmpl[k];
+                    k += 1;
+                    let (Some(j), Some(jx), Some(jy)) = (
+                        lb.sample(&lb.data, x, y),
+                        lb.sample(&lb.gx, x, y),
+                        lb.sample(&lb.gy, x, y),
+                    ) else {
+                        return None;
+                    };
+                    let r = f64::from(alpha * t + beta - j);
+                    ss += r * r;
+                    let jac = [f64::from(jx), f64::from(jy), -f64::from(t), -1.0];
+                    for i in 0..4 {
+                        g[i] += jac[i] * r;
+                        for m in 0..4 {
+                            hm[i][m] += jac[i] * jac[m];
+                        }
+                    }
+                }
+            }
+            last_rms = (ss / npx as f64).sqrt() as f32;
+            let m = nalgebra::Matrix4::from_fn(|i, j| hm[i][j] + if i == j { 1e-9 } else { 0.0 });
+            let step = m.lu().solve(&nalgebra::Vector4::from(g))?;
+            // Step is in this level's pixels.
+            d[0] += (step[0] as f32) / s;
+            d[1] += (step[1] as f32) / s;
+            alpha += step[2] as f32;
+            beta += step[3] as f32;
+            if !(0.3..=3.0).contains(&alpha) {
+                return None;
+            }
+            if step[0].abs() + step[1].abs() < 0.01 {
+                break;
+            }
+        }
+    }
+    (last_rms <= cfg.max_residual).then_some([p[0] + d[0], p[1] + d[1]])
+}
+
+/// Track with a forward-backward check; `None` when lost.
+pub(crate) fn track(
+    a: &Pyramid,
+    b: &Pyramid,
+    p: [f32; 2],
+    guess: [f32; 2],
+    cfg: &KltConfig,
+) -> Option<[f32; 2]> {
+    let q = track_one(a, b, p, guess, cfg)?;
+    let back = track_one(b, a, q, p, cfg)?;
+    let fb = ((back[0] - p[0]).powi(2) + (back[1] - p[1]).powi(2)).sqrt();
+    (fb <= cfg.max_fb).then_some(q)
+}
+
+/// Shi-Tomasi score (smaller eigenvalue of the structure tensor over a `2r+1` box) of every
+/// pixel of a level, via integral images.
+pub(crate) fn min_eigen(l: &Level, r: usize) -> Vec<f32> {
+    let (w, h) = (l.w, l.h);
+    let mut ii = [
+        vec![0.0f64; (w + 1) * (h + 1)],
+        vec![0.0f64; (w + 1) * (h + 1)],
+        vec![0.0f64; (w + 1) * (h + 1)],
+    ];
+    for y in 0..h {
+        let mut row = [0.0f64; 3];
+        for x in 0..w {
+            let (gx, gy) = (f64::from(l.gx[y * w + x]), f64::from(l.gy[y * w + x]));
+            row[0] += gx * gx;
+            row[1] += gx * gy;
+            row[2] += gy * gy;
+            for c in 0..3 {
+                ii[c][(y + 1) * (w + 1) + x + 1] = ii[c][y * (w + 1) + x + 1] + row[c];
+            }
+        }
+    }
+    let mut out = vec![0.0f32; w * h];
+    for y in r..h.saturating_sub(r) {
+        for x in r..w.saturating_sub(r) {
+            let (x0, y0, x1, y1) = (x - r, y - r, x + r + 1, y + r + 1);
+            let s = |c: usize| {
+                ii[c][y1 * (w + 1) + x1] - ii[c][y0 * (w + 1) + x1] - ii[c][y1 * (w + 1) + x0]
+                    + ii[c][y0 * (w + 1) + x0]
+            };
+            let (a, b, c) = (s(0), s(1), s(2));
+            let tr = 0.5 * (a + c);
+            let det = ((0.5 * (a - c)).powi(2) + b * b).sqrt();
+            out[y * w + x] = (tr - det) as f32;
+        }
+    }
+    out
+}

@@ -1,0 +1,414 @@
+//! Online photometric calibration of an auto-exposure video (Bergmann, Wang & Cremers,
+//! "Online Photometric Calibration of Auto Exposure Video for Realtime Visual Odometry and
+//! SLAM", RA-L 2017), run as a batch over the given frames:
+//!
+//! 1. [`klt`]: gain-robust KLT tracks (Kim & Pollefeys 2008) on a pyramid, re-detecting
+//!    Shi-Tomasi corners on a grid when tracks are lost; every track contributes a few pixel
+//!    samples around its centre, weighted down where the image gradient is steep (where a
+//!    sub-pixel position error changes the value most).
+//! 2. Exposures: frame-to-frame log ratios from the tracks under the mean EMoR response
+//!    (a linear problem), then a Gauss-Newton pass on exposures and radiances only.
+//! 3. Joint Huber Levenberg-Marquardt over response (EMoR-4), vignetting (`v1..v3`),
+//!    exposures and radiances ([`super::joint`]), with the gauge fixed explicitly: exposure 0 is
+//!    1 and `f(0.5) = gamma_gauge` (default 0.5, i.e. `f⁻¹(0.5) = 0.5`), so results are unique
+//!    and repeatable.
+
+pub(crate) mod klt;
+
+use serde::{Deserialize, Serialize};
+
+use super::emor::EMOR_DIM;
+use super::joint::{JointConfig, JointState, Obs, refine};
+use super::response::ResponseModel;
+use super::vignette::VignetteModel;
+use super::{FitDiagnostics, PHOTOMETRIC_SCHEMA, PhotoImage, PhotometricModel, check_stack};
+use crate::error::{CoreError, CoreResult};
+use crate::progress::Progress;
+use klt::{KltConfig, Pyramid, min_eigen, track};
+
+/// Parameters of [`photometric_online`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub struct OnlineParams {
+    /// Target number of simultaneously tracked features.
+    pub max_features: usize,
+    /// Pyramid levels used by the tracker.
+    pub pyramid_levels: usize,
+    /// Tracker half window (patch `2k+1` square).
+    pub half_window: usize,
+    /// Largest brightness-compensated patch RMS (normalised intensity) to keep a track.
+    pub max_track_residual: f64,
+    /// Pixel samples per track (1 = the centre, 5 = centre and ±2 px in x and y).
+    pub samples_per_track: usize,
+    /// Values at or below this fraction of full scale are left out.
+    pub low_cut: f64,
+    /// Values at or above this fraction of full scale are left out.
+    pub high_cut: f64,
+    /// Fit the vignetting (otherwise `V = 1`).
+    pub fit_vignette: bool,
+    /// γ gauge: the fitted response satisfies `f(0.5) = gamma_gauge`.
+    pub gamma_gauge: f64,
+    /// Huber threshold in 8-bit levels.
+    pub huber_levels: f64,
+    /// Joint refinement iteration limit.
+    pub max_iterations: usize,
+    /// Scene points kept for the refinement (evenly subsampled above this).
+    pub max_points: usize,
+}
+
+impl Default for OnlineParams {
+    fn default() -> Self {
+        Self {
+            max_features: 300,
+            pyramid_levels: 3,
+            half_window: 5,
+            max_track_residual: 0.04,
+            samples_per_track: 5,
+            low_cut: 3.0 / 255.0,
+            high_cut: 250.0 / 255.0,
+            fit_vignette: true,
+            gamma_gauge: 0.5,
+            huber_levels: 3.0,
+            max_iterations: 40,
+            max_points: 6000,
+        }
+    }
+}
+
+impl OnlineParams {
+    /// Check the ranges.
+    pub fn validate(&self) -> CoreResult<()> {
+        if !(10..=5000).contains(&self.max_features) {
+            return Err(CoreError::param("max_features", "must be in 10..=5000"));
+        }
+        if !(1..=6).contains(&self.pyramid_levels) {
+            return Err(CoreError::param("pyramid_levels", "must be in 1..=6"));
+        }
+        if !(2..=15).contains(&self.half_window) {
+            return Err(CoreError::param("half_window", "must be in 2..=15"));
+        }
+        if !(self.max_track_residual > 0.0 && self.max_track_residual < 1.0) {
+            return Err(CoreError::param("max_track_residual", "must be in (0, 1)"));
+        }
+        if !matches!(self.samples_per_track, 1 | 5 | 9) {
+            return Err(CoreError::param("samples_per_track", "must be 1, 5 or 9"));
+        }
+        if !(self.low_cut >= 0.0 && self.low_cut < self.high_cut && self.high_cut <= 1.0) {
+            return Err(CoreError::param(
+                "low_cut",
+                "need 0 ≤ low_cut < high_cut ≤ 1",
+            ));
+        }
+        if !(self.gamma_gauge > 0.05 && self.gamma_gauge < 0.95) {
+            return Err(CoreError::param("gamma_gauge", "must be in (0.05, 0.95)"));
+        }
+        if !(self.huber_levels.is_finite() && self.huber_levels > 0.0) {
+            return Err(CoreError::param("huber_levels", "must be > 0"));
+        }
+        if !(1..=1000).contains(&self.max_iterations) {
+            return Err(CoreError::param("max_iterations", "must be in 1..=1000"));
+        }
+        if self.max_points < 100 {
+            return Err(CoreError::param("max_points", "must be ≥ 100"));
+        }
+        Ok(())
+    }
+}
+
+/// Result of [`photometric_online`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub struct OnlineResult {
+    /// Always [`PHOTOMETRIC_SCHEMA`].
+    pub schema: String,
+    /// Fitted response and vignetting.
+    pub model: PhotometricModel,
+    /// Exposure of each frame relative to frame 0 (in the γ gauge of the model).
+    pub exposure_ratios: Vec<f64>,
+    /// The fast linear estimate (mean response, no vignetting) before the joint refinement.
+    pub initial_exposure_ratios: Vec<f64>,
+    /// Feature tracks that contributed.
+    pub tracks: usize,
+    /// Mean track length in frames.
+    pub mean_track_length: f64,
+    /// Diagnostics of the joint refinement.
+    pub diagnostics: FitDiagnostics,
+}
+
+const OFFSETS: [[f32; 2]; 9] = [
+    [0.0, 0.0],
+    [2.0, 0.0],
+    [-2.0, 0.0],
+    [0.0, 2.0],
+    [0.0, -2.0],
+    [2.0, 2.0],
+    [-2.0, -2.0],
+    [2.0, -2.0],
+    [-2.0, 2.0],
+];
+
+/// Gradient (normalised intensity per pixel) at which a sample's weight halves.
+const GRAD_HALF_WEIGHT: f32 = 0.03;
+
+struct Track {
+    id: usize,
+    pos: [f32; 2],
+    vel: [f32; 2],
+}
+
+/// Calibrate response, vignetting and exposures from an auto-exposure video.
+pub fn photometric_online(
+    frames: &[PhotoImage],
+    params: &OnlineParams,
+    progress: &dyn Progress,
+) -> CoreResult<OnlineResult> {
+    params.validate()?;
+    let (w, h) = check_stack(frames, 3)?;
+    let vig0 = VignetteModel::centered(w, h, [0.0; 3]);
+    let cfg = KltConfig {
+        half_window: params.half_window as i32,
+        iterations: 12,
+        max_residual: params.max_track_residual as f32,
+        max_fb: 0.3,
+    };
+    let to_pyr = |im: &PhotoImage| {
+        let s = 1.0 / f32::from(im.max_level);
+        Pyramid::new(
+            w,
+            h,
+            im.data.iter().map(|&v| f32::from(v) * s).collect(),
+            params.pyramid_levels,
+        )
+    };
+    let border = (params.half_window + 3) as f32;
+    let cell = (((w * h) as f64 / params.max_features as f64)
+        .sqrt()
+        .max(4.0)) as usize;
+    let n_off = params.samples_per_track;
+    let mut obs: Vec<Obs> = Vec::new();
+    let mut tracks: Vec<Track> = Vec::new();
+    let mut track_len: Vec<u32> = Vec::new();
+    let mut prev: Option<Pyramid> = None;
+    for (k, im) in frames.iter().enumerate() {
+        progress.check()?;
+        progress.report("track", k as u64, frames.len() as u64);
+        let pyr = to_pyr(im);
+        if let Some(pp) = &prev {
+            let tracked: Vec<Option<[f32; 2]>> = {
+                use rayon::prelude::*;
+                tracks
+                    .par_iter()
+                    .map(|t| {
+                        let guess = [t.pos[0] + t.vel[0], t.pos[1] + t.vel[1]];
+                        track(pp, &pyr, t.pos, guess, &cfg).filter(|q| {
+                            q[0] >= border
+                                && q[1] >= border
+                                && q[0] < w as f32 - border
+                                && q[1] < h as f32 - border
+                        })
+                    })
+                    .collect()
+            };
+            let mut kept = Vec::with_capacity(tracks.len());
+            for (t, q) in tracks.drain(..).zip(tracked) {
+                if let Some(q) = q {
+                    kept.push(Track {
+                        id: t.id,
+                        vel: [q[0] - t.pos[0], q[1] - t.pos[1]],
+                        pos: q,
+                    });
+                }
+            }
+            tracks = kept;
+        }
+        // Re-detect in empty grid cells.
+        if tracks.len() < params.max_features * 9 / 10 {
+            let l0 = &pyr.levels[0];
+            let score = min_eigen(l0, 2);
+            let (gw, gh) = (w.div_ceil(cell), h.div_ceil(cell));
+            let mut occupied = vec![false; gw * gh];
+            for t in &tracks {
+                let (cx, cy) = (t.pos[0] as usize / cell, t.pos[1] as usize / cell);
+                occupied[cy.min(gh - 1) * gw + cx.min(gw - 1)] = true;
+            }
+            let b = border as usize + 2;
+            for gy in 0..gh {
+                for gx in 0..gw {
+                    if occupied[gy * gw + gx] {
+                        continue;
+                    }
+                    let mut best = (1e-4f32, None);
+                    for y in (gy * cell).max(b)..((gy + 1) * cell).min(h.saturating_sub(b)) {
+                        for x in (gx * cell).max(b)..((gx + 1) * cell).min(w.saturating_sub(b)) {
+                            if score[y * w + x] > best.0 {
+                                best = (score[y * w + x], Some([x as f32, y as f32]));
+                            }
+                        }
+                    }
+                    if let (_, Some(p)) = best {
+                        tracks.push(Track {
+                            id: track_len.len(),
+                            pos: p,
+                            vel: [0.0; 2],
+                        });
+                        track_len.push(0);
+                    }
+                }
+            }
+        }
+        // Samples.
+        let l0 = &pyr.levels[0];
+        for t in &tracks {
+            track_len[t.id] += 1;
+            for (o, off) in OFFSETS[..n_off].iter().enumerate() {
+                let (x, y) = (t.pos[0] + off[0], t.pos[1] + off[1]);
+                let (Some(v), Some(gx), Some(gy)) = (
+                    l0.sample(&l0.data, x, y),
+                    l0.sample(&l0.gx, x, y),
+                    l0.sample(&l0.gy, x, y),
+                ) else {
+                    continue;
+                };
+                if f64::from(v) <= params.low_cut || f64::from(v) >= params.high_cut {
+                    continue;
+                }
+                let g2 = (gx * gx + gy * gy) / (GRAD_HALF_WEIGHT * GRAD_HALF_WEIGHT);
+                obs.push(Obs {
+                    point: (t.id * n_off + o) as u32,
+                    frame: k as u32,
+                    r2: vig0.r2(f64::from(x), f64::from(y)) as f32,
+                    value: v,
+                    weight: 1.0 / (1.0 + g2),
+                });
+            }
+        }
+        prev = Some(pyr);
+    }
+    let used_tracks = track_len.iter().filter(|&&n| n >= 2).count();
+    let mean_len = if used_tracks > 0 {
+        track_len
+            .iter()
+            .filter(|&&n| n >= 2)
+            .map(|&n| f64::from(n))
+            .sum::<f64>()
+            / used_tracks as f64
+    } else {
+        0.0
+    };
+    // Points with ≥ 2 observations, evenly subsampled, renumbered densely.
+    obs.sort_by_key(|o| (o.point, o.frame));
+    let n_raw = (track_len.len() * n_off) as u32;
+    let mut count = vec![0u32; n_raw as usize];
+    for o in &obs {
+        count[o.point as usize] += 1;
+    }
+    let eligible: Vec<u32> = (0..n_raw).filter(|&p| count[p as usize] >= 2).collect();
+    let keep_every = eligible.len().div_ceil(params.max_points).max(1);
+    let mut remap = vec![u32::MAX; n_raw as usize];
+    let mut n_points = 0u32;
+    for &p in eligible.iter().step_by(keep_every) {
+        remap[p as usize] = n_points;
+        n_points += 1;
+    }
+    obs.retain_mut(|o| {
+        let m = remap[o.point as usize];
+        o.point = m;
+        m != u32::MAX
+    });
+    if n_points < 20 || obs.len() < 200 {
+        return Err(CoreError::input(format!(
+            "only {n_points} trackable scene points ({} samples): the video needs texture and \
+             overlap between frames",
+            obs.len()
+        )));
+    }
+    let nf = frames.len();
+    // Frame-to-frame exposure ratios under the mean response.
+    let g0 = ResponseModel::default().inverse(4096);
+    let lg = |o: &Obs| g0.eval(f64::from(o.value)).max(1e-6).ln();
+    let mut ratios: Vec<Vec<f64>> = vec![Vec::new(); nf];
+    for pair in obs.windows(2) {
+        let (a, b) = (&pair[0], &pair[1]);
+        if a.point == b.point && b.frame == a.frame + 1 {
+            ratios[b.frame as usize].push(lg(b) - lg(a));
+        }
+    }
+    let mut log_e = vec![0.0; nf];
+    for k in 1..nf {
+        let r = &mut ratios[k];
+        let step = if r.is_empty() {
+            0.0
+        } else {
+            r.sort_by(f64::total_cmp);
+            r[r.len() / 2]
+        };
+        log_e[k] = log_e[k - 1] + step;
+    }
+    let mut log_l = vec![0.0; n_points as usize];
+    let mut acc = vec![(0.0, 0.0); n_points as usize];
+    for o in &obs {
+        let a = &mut acc[o.point as usize];
+        a.0 += lg(o) - log_e[o.frame as usize];
+        a.1 += 1.0;
+    }
+    for (l, a) in log_l.iter_mut().zip(&acc) {
+        *l = a.0 / a.1;
+    }
+    let mut state = JointState {
+        c: [0.0; EMOR_DIM],
+        v: [0.0; 3],
+        log_e,
+        log_l,
+    };
+    let huber = params.huber_levels / 255.0;
+    progress.check()?;
+    refine(
+        &obs,
+        &JointConfig {
+            fit_response: false,
+            fit_vignette: false,
+            fit_exposures: true,
+            gamma_gauge: None,
+            huber,
+            max_iterations: 5,
+        },
+        &mut state,
+        progress,
+    )?;
+    let initial: Vec<f64> = state.log_e.iter().map(|l| l.exp()).collect();
+    let rep = refine(
+        &obs,
+        &JointConfig {
+            fit_response: true,
+            fit_vignette: params.fit_vignette,
+            fit_exposures: true,
+            gamma_gauge: Some(params.gamma_gauge),
+            huber,
+            max_iterations: params.max_iterations,
+        },
+        &mut state,
+        progress,
+    )?;
+    let response = ResponseModel::Emor { c: state.c };
+    let monotone = response.is_monotone();
+    let vignette = params
+        .fit_vignette
+        .then(|| VignetteModel::centered(w, h, state.v));
+    Ok(OnlineResult {
+        schema: PHOTOMETRIC_SCHEMA.to_string(),
+        model: PhotometricModel::new(response, vignette),
+        exposure_ratios: state.log_e.iter().map(|l| l.exp()).collect(),
+        initial_exposure_ratios: initial,
+        tracks: used_tracks,
+        mean_track_length: mean_len,
+        diagnostics: FitDiagnostics {
+            residual_rms_levels: rep.rms * 255.0,
+            observations: obs.len(),
+            points: n_points as usize,
+            iterations: rep.iterations,
+            converged: rep.converged,
+            monotone,
+        },
+    })
+}
