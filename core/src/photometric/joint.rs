@@ -158,6 +158,7 @@ pub(crate) fn refine(
     // Stiff enough to hold the gauge and monotonicity to ~1e-4 against the data term.
     let wpen = 1e3 * wsum;
     let mut lambda = 1e-3;
+    let mut small_steps = 0;
     let mut cost = total_cost(obs, cfg, state, wpen);
     let mut report = JointReport::default();
     // Point ranges.
@@ -260,7 +261,7 @@ pub(crate) fn refine(
         }
         // Try steps with increasing damping until the cost drops.
         let mut accepted = false;
-        for _ in 0..10 {
+        for _ in 0..24 {
             let mut s = h.clone();
             let mut bs = g.clone();
             for a in 0..dim {
@@ -309,12 +310,25 @@ pub(crate) fn refine(
                 cost = new_cost;
                 lambda = (lambda / 3.0).max(1e-9);
                 accepted = true;
-                if rel < 1e-7 {
+                // Tiny decreases under heavy damping are not convergence: only stop after a
+                // few consecutive negligible, lightly damped steps.
+                if rel < 1e-8 && lambda < 1e-2 {
+                    small_steps += 1;
+                } else {
+                    small_steps = 0;
+                }
+                if small_steps >= 3 {
                     report.converged = true;
                 }
                 break;
             }
             lambda *= 4.0;
+        }
+        if std::env::var_os("CALIPER_DEBUG_LM").is_some() {
+            eprintln!(
+                "it {it} cost {cost:.6e} lambda {lambda:.1e} accepted {accepted} c {:?}",
+                state.c
+            );
         }
         if !accepted || report.converged {
             report.converged = true;
@@ -345,4 +359,39 @@ pub(crate) fn refine(
     };
     report.inliers = n;
     Ok(report)
+}
+
+/// Move a start that assumed the mean response `f0` into the γ gauge `f(0.5) = gauge` without
+/// changing what it predicts: `f̃(x) = f0(x^k)` with `0.5^k = f0⁻¹(gauge)`, exposures and
+/// radiances raised to `1/k`, and `f̃` projected onto the EMoR basis by least squares. Starting
+/// in the right gauge sheet avoids a first step dominated by the gauge constraint, after which
+/// LM can stall in the curved γ valley.
+pub(crate) fn gauge_start(state: &mut JointState, gauge: f64) {
+    use super::response::{ResponseModel, interp_table};
+    let b = emor_basis();
+    let x_m = ResponseModel::default().inverse(4096).eval(gauge);
+    let k = x_m.max(1e-6).ln() / 0.5f64.ln();
+    if !(k.is_finite() && k > 0.05) {
+        return;
+    }
+    let n = (EMOR_SAMPLES - 1) as f64;
+    let mut ata = nalgebra::Matrix4::<f64>::zeros();
+    let mut atb = nalgebra::Vector4::<f64>::zeros();
+    for j in 0..EMOR_SAMPLES {
+        let x = j as f64 / n;
+        let target = interp_table(&b.f0, x.powf(k)) - b.f0[j];
+        for a in 0..EMOR_DIM {
+            atb[a] += b.h[a][j] * target;
+            for c in 0..EMOR_DIM {
+                ata[(a, c)] += b.h[a][j] * b.h[c][j];
+            }
+        }
+    }
+    if let Some(ch) = ata.cholesky() {
+        let c = ch.solve(&atb);
+        state.c = [c[0], c[1], c[2], c[3]];
+    }
+    for l in state.log_e.iter_mut().chain(state.log_l.iter_mut()) {
+        *l /= k;
+    }
 }

@@ -110,6 +110,8 @@ impl SynthCamera {
     }
 }
 
+const TEX_MIN_WAVELENGTH: f64 = 16.0;
+
 /// A smooth random radiance texture on the plane: a sum of sinusoids (wavelengths 8–80 units)
 /// plus a large-scale brightness field, mapped to `mid · 2^(stops · (s − ½))`.
 #[derive(Debug, Clone)]
@@ -128,7 +130,7 @@ impl Texture {
             let lambda = if i < 4 {
                 300.0 + 300.0 * rng.uniform()
             } else {
-                8.0 + 50.0 * rng.uniform()
+                TEX_MIN_WAVELENGTH + 50.0 * rng.uniform()
             };
             let th = std::f64::consts::TAU * rng.uniform();
             let k = std::f64::consts::TAU / lambda;
@@ -196,7 +198,7 @@ pub fn render_ae_sequence(cam: &SynthCamera, frames: usize) -> AeSequence {
     let tex = Texture::new(cam.seed, 0.0625, 7.0);
     let mut rng = Rng::new(cam.seed ^ 0xAE5E);
     let (cx, cy) = (cam.width as f64 / 2.0, cam.height as f64 / 2.0);
-    let mut e = 1.0f64;
+    let mut e = 4.0f64;
     let mut out = AeSequence {
         frames: Vec::with_capacity(frames),
         exposures: Vec::with_capacity(frames),
@@ -216,7 +218,7 @@ pub fn render_ae_sequence(cam: &SynthCamera, frames: usize) -> AeSequence {
         let mean = img.data.iter().map(|&v| f64::from(v)).sum::<f64>()
             / (img.data.len() as f64 * f64::from(img.max_level));
         out.frames.push(img);
-        out.exposures.push(e);
+        out.exposures.push(e / 4.0);
         out.timestamps.push(t / 20.0);
         let target = 0.43;
         let ratio = (target / mean.max(1e-3)).powf(0.6);

@@ -339,3 +339,197 @@ fn params_serde_and_validation() {
     let back: PhotometricModel = serde_json::from_str(&j).unwrap();
     assert_eq!(back, m);
 }
+
+#[test]
+#[ignore]
+fn debug_online() {
+    let cam = SynthCamera::reference(160, 120, 11);
+    let seq = render_ae_sequence(&cam, 80);
+    for gauge in [0.5] {
+        let p = OnlineParams {
+            max_features: 150,
+            gamma_gauge: gauge,
+            ..OnlineParams::default()
+        };
+        let r = photometric_online(&seq.frames, &p, &NoProgress).unwrap();
+        let fit = InverseResponse::new(r.model.inverse_256.clone()).unwrap();
+        let (alpha, err) = gamma_align(&fit, &cam.response.inverse(256));
+        let e0 = exposure_error_pct(&r.initial_exposure_ratios, &seq.exposures, 1.0);
+        let e1 = exposure_error_pct(&r.exposure_ratios, &seq.exposures, alpha);
+        eprintln!(
+            "gauge {gauge}: alpha {alpha:.3} resp {err:.4} init exp err {e0:.2}% final {e1:.2}% c {:?} v {:?} tracks {} len {:.1} {:?}",
+            r.model.response,
+            r.model.vignette.as_ref().map(|v| v.v),
+            r.tracks,
+            r.mean_track_length,
+            r.diagnostics
+        );
+        let q: Vec<String> = r
+            .exposure_ratios
+            .iter()
+            .zip(&seq.exposures)
+            .map(|(f, t)| format!("{:.3}", f.powf(alpha) / t))
+            .collect();
+        eprintln!("fit/true {}", q.join(" "));
+    }
+}
+
+#[test]
+#[ignore]
+fn debug_joint_perfect_tracks() {
+    use super::joint::{JointConfig, JointState, Obs, refine};
+    let cam = SynthCamera::reference(160, 120, 11);
+    let seq = render_ae_sequence(&cam, 80);
+    let tex = synth::Texture::new(11, 0.0625, 7.0);
+    let vm = cam.vignette_model();
+    let fwd = cam.response.forward_table();
+    let mut rng = synth::Rng::new(5);
+    let truth_mid = cam.response.forward(0.5);
+    for (exact, gauge) in [(true, 0.5), (true, truth_mid), (true, -1.0)] {
+        let mut obs = Vec::new();
+        let mut np = 0u32;
+        for _ in 0..2000 {
+            let (u, v) = (100.0 + 300.0 * rng.uniform(), 250.0 + 120.0 * rng.uniform());
+            let mut n = 0;
+            for k in 0..80 {
+                let t = k as f64;
+                let (tx, ty) = (200.0 + 1.5 * t, 300.0 + 25.0 * (0.02 * t).sin());
+                let th = 0.15 * (0.013 * t).sin();
+                let sc = 1.0 + 0.15 * (0.017 * t).sin();
+                let (du, dv) = (u - tx, v - ty);
+                let (c, s) = (th.cos() / sc, th.sin() / sc);
+                let (x, y) = (80.0 + c * du + s * dv, 60.0 - s * du + c * dv);
+                if !(2.0..157.0).contains(&x) || !(2.0..117.0).contains(&y) {
+                    continue;
+                }
+                let val = if exact {
+                    let e = 4.0 * seq.exposures[k] * vm.eval(x, y) * tex.radiance(u, v);
+                    let sigma = (cam.shot * e + cam.read * cam.read).sqrt();
+                    let e = (e + sigma * rng.normal()).clamp(0.0, 1.0);
+                    (super::response::interp_table(&fwd, e) * 255.0).round() / 255.0
+                } else {
+                    let im = &seq.frames[k];
+                    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+                    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+                    (im.get(x0, y0) * (1.0 - fx) + im.get(x0 + 1, y0) * fx) * (1.0 - fy)
+                        + (im.get(x0, y0 + 1) * (1.0 - fx) + im.get(x0 + 1, y0 + 1) * fx) * fy
+                };
+                if val <= 3.0 / 255.0 || val >= 250.0 / 255.0 {
+                    continue;
+                }
+                obs.push(Obs {
+                    point: np,
+                    frame: k as u32,
+                    r2: vm.r2(x, y) as f32,
+                    value: val as f32,
+                    weight: 1.0,
+                });
+                n += 1;
+            }
+            if n >= 2 {
+                np += 1;
+            } else {
+                obs.truncate(obs.len() - n);
+            }
+        }
+        let g0 = ResponseModel::default().inverse(4096);
+        let mut log_l = vec![(0.0, 0.0); np as usize];
+        for o in &obs {
+            let a = &mut log_l[o.point as usize];
+            a.0 += g0.eval(f64::from(o.value)).max(1e-6).ln();
+            a.1 += 1.0;
+        }
+        let mut st = JointState {
+            c: [0.0; 4],
+            v: [0.0; 3],
+            log_e: vec![0.0; 80],
+            log_l: log_l.iter().map(|a| a.0 / a.1).collect(),
+        };
+        let mut cfg = JointConfig {
+            fit_response: false,
+            fit_vignette: false,
+            fit_exposures: true,
+            gamma_gauge: None,
+            huber: 3.0 / 255.0,
+            max_iterations: 5,
+        };
+        refine(&obs, &cfg, &mut st, &NoProgress).unwrap();
+        cfg.fit_response = true;
+        cfg.fit_vignette = true;
+        cfg.gamma_gauge = (gauge > 0.0).then_some(gauge);
+        if gauge > 0.0 {
+            super::joint::gauge_start(&mut st, gauge);
+        }
+        cfg.max_iterations = 100;
+        if gauge < 0.0 {
+            st.c = [3.0, -0.8, 0.2, -0.05];
+            st.v = cam.vignette;
+            st.log_e = seq.exposures.iter().map(|e| e.ln()).collect();
+            cfg.gamma_gauge = Some(truth_mid);
+        }
+        let rep = refine(&obs, &cfg, &mut st, &NoProgress).unwrap();
+        let fit = ResponseModel::Emor { c: st.c }.inverse(256);
+        let (alpha, err) = gamma_align(&fit, &cam.response.inverse(256));
+        let ee: Vec<f64> = st.log_e.iter().map(|l| l.exp()).collect();
+        let e1 = exposure_error_pct(&ee, &seq.exposures, alpha);
+        eprintln!(
+            "exact {exact} gauge {gauge}: obs {} alpha {alpha:.3} resp {err:.4} exp {e1:.2}% c {:?} v {:?} rms {:.2} it {}",
+            obs.len(),
+            st.c,
+            st.v,
+            rep.rms * 255.0,
+            rep.iterations
+        );
+    }
+}
+
+#[test]
+#[ignore]
+fn debug_shared() {
+    let dir = std::path::Path::new("/work/shared/data/photometric/ae_seq_seed0");
+    let mut frames = Vec::new();
+    for k in 0..200 {
+        let b = std::fs::read(dir.join(format!("images/{k:06}.png"))).unwrap();
+        frames.push(PhotoImage::decode(&b, &ImageLimits::default()).unwrap());
+    }
+    let gt: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("gt.json")).unwrap()).unwrap();
+    let f = |v: &serde_json::Value| -> Vec<f64> {
+        v.as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let truth = InverseResponse {
+        values: f(&gt["response"]["inverse_256"]),
+    };
+    let te = f(&gt["exposure_ratio_to_frame0"]);
+    let tv = VignetteModel::centered(320, 240, [-0.35, 0.1, -0.1]);
+    let mi: usize = std::env::var("MI")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(40);
+    let t0 = std::time::Instant::now();
+    let p = OnlineParams {
+        max_iterations: mi,
+        ..OnlineParams::default()
+    };
+    let r = photometric_online(&frames, &p, &NoProgress).unwrap();
+    let dt = t0.elapsed().as_secs_f64();
+    let fit = InverseResponse::new(r.model.inverse_256.clone()).unwrap();
+    let (alpha, err) = gamma_align(&fit, &truth);
+    let verr = metrics::vignette_rmse(&r.model.vignette.as_ref().unwrap().map(), &tv.map(), alpha);
+    let e1 = exposure_error_pct(&r.exposure_ratios, &te, alpha);
+    eprintln!(
+        "shared: {dt:.2}s alpha {alpha:.3} resp {err:.4} vig {verr:.4} exp {e1:.2}% tracks {} len {:.1} {:?} c {:?}",
+        r.tracks, r.mean_track_length, r.diagnostics, r.model.response
+    );
+    let q: Vec<String> = r
+        .exposure_ratios
+        .iter()
+        .zip(&te)
+        .map(|(f, t)| format!("{:.3}", f.powf(alpha) / t))
+        .collect();
+    eprintln!("fit/true {}", q.join(" "));
+}

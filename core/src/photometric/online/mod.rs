@@ -18,7 +18,7 @@ pub(crate) mod klt;
 use serde::{Deserialize, Serialize};
 
 use super::emor::EMOR_DIM;
-use super::joint::{JointConfig, JointState, Obs, refine};
+use super::joint::{JointConfig, JointState, Obs, gauge_start, refine};
 use super::response::ResponseModel;
 use super::vignette::VignetteModel;
 use super::{FitDiagnostics, PHOTOMETRIC_SCHEMA, PhotoImage, PhotometricModel, check_stack};
@@ -377,6 +377,7 @@ pub fn photometric_online(
         progress,
     )?;
     let initial: Vec<f64> = state.log_e.iter().map(|l| l.exp()).collect();
+    gauge_start(&mut state, params.gamma_gauge);
     let rep = refine(
         &obs,
         &JointConfig {
