@@ -324,12 +324,6 @@ pub(crate) fn refine(
             }
             lambda *= 4.0;
         }
-        if std::env::var_os("CALIPER_DEBUG_LM").is_some() {
-            eprintln!(
-                "it {it} cost {cost:.6e} lambda {lambda:.1e} accepted {accepted} c {:?}",
-                state.c
-            );
-        }
         if !accepted || report.converged {
             report.converged = true;
             break;

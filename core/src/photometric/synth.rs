@@ -134,7 +134,7 @@ impl Texture {
             };
             let th = std::f64::consts::TAU * rng.uniform();
             let k = std::f64::consts::TAU / lambda;
-            let amp = if i < 4 { 1.6 } else { 1.0 };
+            let amp = if i < 4 { 3.0 } else { 1.0 };
             waves.push([
                 k * th.cos(),
                 k * th.sin(),
@@ -180,6 +180,9 @@ pub fn render_flats(cam: &SynthCamera, levels: &[f64]) -> Vec<PhotoImage> {
         .collect()
 }
 
+/// Exposure of the first frame of [`render_ae_sequence`], near the controller's steady state.
+const E_START: f64 = 10.0;
+
 /// An auto-exposure video and its ground truth.
 #[derive(Debug, Clone)]
 pub struct AeSequence {
@@ -191,14 +194,14 @@ pub struct AeSequence {
     pub timestamps: Vec<f64>,
 }
 
-/// A camera gliding over a textured plane (translation ~1.5 px/frame, slow rotation and zoom)
+/// A camera gliding over a textured plane (translation ~2 px/frame, slow rotation and zoom)
 /// with a proportional auto-exposure controller aiming at mid grey, plus a 5 % exposure
 /// flicker, like the shared `ae_seq_seed0` data.
 pub fn render_ae_sequence(cam: &SynthCamera, frames: usize) -> AeSequence {
     let tex = Texture::new(cam.seed, 0.0625, 7.0);
     let mut rng = Rng::new(cam.seed ^ 0xAE5E);
     let (cx, cy) = (cam.width as f64 / 2.0, cam.height as f64 / 2.0);
-    let mut e = 4.0f64;
+    let mut e = E_START;
     let mut out = AeSequence {
         frames: Vec::with_capacity(frames),
         exposures: Vec::with_capacity(frames),
@@ -206,7 +209,7 @@ pub fn render_ae_sequence(cam: &SynthCamera, frames: usize) -> AeSequence {
     };
     for k in 0..frames {
         let t = k as f64;
-        let (tx, ty) = (200.0 + 1.5 * t, 300.0 + 25.0 * (0.02 * t).sin());
+        let (tx, ty) = (200.0 + 2.0 * t, 300.0 + 25.0 * (0.02 * t).sin());
         let th = 0.15 * (0.013 * t).sin();
         let sc = 1.0 + 0.15 * (0.017 * t).sin();
         let (c, s) = (th.cos() * sc, th.sin() * sc);
@@ -218,7 +221,7 @@ pub fn render_ae_sequence(cam: &SynthCamera, frames: usize) -> AeSequence {
         let mean = img.data.iter().map(|&v| f64::from(v)).sum::<f64>()
             / (img.data.len() as f64 * f64::from(img.max_level));
         out.frames.push(img);
-        out.exposures.push(e / 4.0);
+        out.exposures.push(e / E_START);
         out.timestamps.push(t / 20.0);
         let target = 0.43;
         let ratio = (target / mean.max(1e-3)).powf(0.6);

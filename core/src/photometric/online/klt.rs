@@ -48,6 +48,25 @@ impl Level {
     }
 }
 
+impl Level {
+    /// Bilinear sample of intensity and both gradients at once (shared weights).
+    #[inline]
+    pub fn sample3(&self, x: f32, y: f32) -> Option<[f32; 3]> {
+        if !(x >= 0.0 && y >= 0.0 && x <= (self.w - 1) as f32 && y <= (self.h - 1) as f32) {
+            return None;
+        }
+        let x0 = (x.floor() as usize).min(self.w.saturating_sub(2));
+        let y0 = (y.floor() as usize).min(self.h.saturating_sub(2));
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let (wa, wb) = ((1.0 - fx) * (1.0 - fy), fx * (1.0 - fy));
+        let (wc, wd) = ((1.0 - fx) * fy, fx * fy);
+        let i = y0 * self.w + x0;
+        let j = i + self.w;
+        let s = |b: &[f32]| wa * b[i] + wb * b[i + 1] + wc * b[j] + wd * b[j + 1];
+        Some([s(&self.data), s(&self.gx), s(&self.gy)])
+    }
+}
+
 /// A Gaussian-ish ([1 2 1]/4 separable) pyramid.
 pub(crate) struct Pyramid {
     pub levels: Vec<Level>,
@@ -125,36 +144,32 @@ fn track_one(
         }
         for _ in 0..cfg.iterations {
             let (qx, qy) = (px + d[0] * s, py + d[1] * s);
-            let mut hm = [[0.0f64; 4]; 4];
-            let mut g = [0.0f64; 4];
-            let mut ss = 0.0f64;
+            let mut hm = [[0.0f32; 4]; 4];
+            let mut g = [0.0f32; 4];
+            let mut ss = 0.0f32;
             let mut k = 0;
             for dy in -hw..=hw {
                 for dx in -hw..=hw {
                     let (x, y) = (qx + dx as f32, qy + dy as f32);
                     let t = tmpl[k];
                     k += 1;
-                    let (Some(j), Some(jx), Some(jy)) = (
-                        lb.sample(&lb.data, x, y),
-                        lb.sample(&lb.gx, x, y),
-                        lb.sample(&lb.gy, x, y),
-                    ) else {
-                        return None;
-                    };
-                    let r = f64::from(alpha * t + beta - j);
+                    let [j, jx, jy] = lb.sample3(x, y)?;
+                    let r = alpha * t + beta - j;
                     ss += r * r;
-                    let jac = [f64::from(jx), f64::from(jy), -f64::from(t), -1.0];
+                    let jac = [jx, jy, -t, -1.0];
                     for i in 0..4 {
                         g[i] += jac[i] * r;
-                        for m in 0..4 {
+                        for m in i..4 {
                             hm[i][m] += jac[i] * jac[m];
                         }
                     }
                 }
             }
-            last_rms = (ss / npx as f64).sqrt() as f32;
-            let m = nalgebra::Matrix4::from_fn(|i, j| hm[i][j] + if i == j { 1e-9 } else { 0.0 });
-            let step = m.lu().solve(&nalgebra::Vector4::from(g))?;
+            last_rms = (ss / npx as f32).sqrt();
+            let m = nalgebra::Matrix4::from_fn(|i, j| {
+                f64::from(hm[i.min(j)][i.max(j)]) + if i == j { 1e-9 } else { 0.0 }
+            });
+            let step = m.lu().solve(&nalgebra::Vector4::from(g.map(f64::from)))?;
             // Step is in this level's pixels.
             d[0] += (step[0] as f32) / s;
             d[1] += (step[1] as f32) / s;
@@ -163,7 +178,7 @@ fn track_one(
             if !(0.3..=3.0).contains(&alpha) {
                 return None;
             }
-            if step[0].abs() + step[1].abs() < 0.01 {
+            if step[0].abs() + step[1].abs() < 0.02 {
                 break;
             }
         }

@@ -62,7 +62,7 @@ impl Default for OnlineParams {
         Self {
             max_features: 300,
             pyramid_levels: 3,
-            half_window: 5,
+            half_window: 4,
             max_track_residual: 0.04,
             samples_per_track: 5,
             low_cut: 3.0 / 255.0,
@@ -168,7 +168,7 @@ pub fn photometric_online(
     let vig0 = VignetteModel::centered(w, h, [0.0; 3]);
     let cfg = KltConfig {
         half_window: params.half_window as i32,
-        iterations: 12,
+        iterations: 8,
         max_residual: params.max_track_residual as f32,
         max_fb: 0.3,
     };
