@@ -68,6 +68,9 @@ pub(crate) struct JointReport {
 /// Step below which an EMoR segment counts as non-increasing (per sample of the basis grid).
 const MONO_EPS: f64 = 1e-5;
 
+/// Per scene point: `H_ll`, `b_l` and the non-zero cross terms `H_dl` (dense index, value).
+type PointBlock = (f64, f64, Vec<(usize, f64)>);
+
 struct Layout {
     nc: usize,
     nv: usize,
@@ -181,7 +184,7 @@ pub(crate) fn refine(
         let mut h = DMatrix::<f64>::zeros(dim, dim);
         let mut g = DVector::<f64>::zeros(dim);
         // Per point: (hl, bl, cross terms) for back-substitution.
-        let mut point_blocks: Vec<(f64, f64, Vec<(usize, f64)>)> = Vec::with_capacity(ranges.len());
+        let mut point_blocks: Vec<PointBlock> = Vec::with_capacity(ranges.len());
         let mut hll_diag = Vec::with_capacity(ranges.len());
         for rg in &ranges {
             let pi = obs[rg.start].point as usize;

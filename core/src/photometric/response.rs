@@ -111,7 +111,7 @@ fn monotone_unit(mut v: Vec<f64>) -> Vec<f64> {
     v[0] = 0.0;
     for i in 1..n {
         let lo = v[i - 1] + MIN_STEP;
-        if !(v[i] >= lo) {
+        if v[i].is_nan() || v[i] < lo {
             v[i] = lo;
         }
     }
