@@ -19,13 +19,16 @@ pub fn render(doc: &Value, format: &str) -> Result<Rendered, ApiError> {
         ApiError::new(
             "unsupported_format",
             format!(
-                "documents of schema {schema:?} have no {format:?} export; camera documents offer opencv-yaml, ros-yaml, kalibr-yaml and json"
+                "documents of schema {schema:?} have no {format:?} export; camera documents offer opencv-yaml, ros-yaml, kalibr-yaml and json; imu_noise documents kalibr-yaml; photometric documents dso-pcalib"
             ),
         )
         .with_field("format")
     };
     if schema == "caliper.imu_noise/v1" && format == "kalibr-yaml" {
         return kalibr_imu_yaml(doc);
+    }
+    if schema == "caliper.photometric/v1" && format == "dso-pcalib" {
+        return dso_pcalib(doc);
     }
     if schema != "caliper.camera/v1" {
         return Err(unsupported());
@@ -66,6 +69,19 @@ pub fn render(doc: &Value, format: &str) -> Result<Rendered, ApiError> {
     Ok(Rendered {
         body,
         media_type: fmt.media_type(),
+    })
+}
+
+/// DSO's `pcalib.txt` (the inverse response as 256 values) of a photometric document.
+fn dso_pcalib(doc: &Value) -> Result<Rendered, ApiError> {
+    use caliper_core::photometric::{InverseResponse, PhotometricModel, dso};
+    let model: PhotometricModel = serde_json::from_value(doc["parameters"]["model"].clone())
+        .map_err(|e| ApiError::internal(format!("stored photometric document unreadable: {e}")))?;
+    let inv = InverseResponse::new(model.inverse_256)
+        .map_err(|e| ApiError::new("unsupported_format", e.to_string()).with_field("format"))?;
+    Ok(Rendered {
+        body: dso::write_pcalib(&inv),
+        media_type: "text/plain; charset=utf-8",
     })
 }
 

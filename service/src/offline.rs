@@ -23,6 +23,90 @@ pub enum RunCommand {
     ImuIntrinsics(ImuArgs),
     /// Bias against temperature of an IMU log with a temperature column.
     ImuThermal(ImuArgs),
+    /// Deblur images; with `--out DIR` writes `DIR/NAME` (same format) and the kernel.
+    Deblur(DeblurArgs),
+    /// Camera response from a bracketed stack (exposure times from `--times` or `--exposures`).
+    PhotometricResponse(PhotometricResponseArgs),
+    /// Vignetting from flat-field images.
+    Vignetting(PhotometricArgs),
+    /// Response, vignetting and exposures of an auto-exposure image sequence; with `--out DIR`
+    /// writes DSO's `pcalib.txt`, `vignette.png` and `times.txt`.
+    PhotometricOnline(PhotometricArgs),
+    /// Apply a photometric model (a photometric document) to images.
+    PhotometricCorrect(PhotometricCorrectArgs),
+}
+
+/// Flags of `caliper run deblur`.
+#[derive(Debug, Args)]
+pub struct DeblurArgs {
+    /// wiener, richardson_lucy, tv, blind, blind_rl or gyro [default: tv].
+    #[arg(long)]
+    pub method: Option<String>,
+    /// Kernel file: a text matrix (as `numpy.savetxt` writes), JSON ({width, height, data}) or
+    /// a grey PNG.
+    #[arg(long)]
+    pub psf: Option<PathBuf>,
+    /// Iterations (RL, TV, alternating RL).
+    #[arg(long)]
+    pub iterations: Option<usize>,
+    /// Wiener noise-to-signal ratio [default: estimated].
+    #[arg(long)]
+    pub nsr: Option<f64>,
+    /// TV weight [default: from the estimated noise].
+    #[arg(long)]
+    pub tv_lambda: Option<f64>,
+    /// Kernel side for the blind methods (odd).
+    #[arg(long)]
+    pub kernel_size: Option<usize>,
+    /// Gyro trace for `--method gyro`: JSON with `samples` [{t, w: [x, y, z]}],
+    /// `exposure_start_s`, `exposure_s` and (unless `--camera` gives them) fx, fy, cx, cy.
+    #[arg(long)]
+    pub gyro: Option<PathBuf>,
+    /// A `caliper.camera/v1` document whose intrinsics complete `--gyro`.
+    #[arg(long)]
+    pub camera: Option<PathBuf>,
+    #[command(flatten)]
+    pub common: CommonArgs,
+}
+
+/// Flags of `caliper run vignetting` and `photometric-online`.
+#[derive(Debug, Args)]
+pub struct PhotometricArgs {
+    /// Parameters as JSON (see `GET /v1/job-kinds`), e.g. '{"options": {"fit_center": true}}'.
+    #[arg(long)]
+    pub params: Option<String>,
+    #[command(flatten)]
+    pub common: CommonArgs,
+}
+
+/// Flags of `caliper run photometric-response`.
+#[derive(Debug, Args)]
+pub struct PhotometricResponseArgs {
+    /// A `times.txt` (`id timestamp exposure` per line, ids = image file stems, or in image
+    /// order when the ids do not match).
+    #[arg(long)]
+    pub times: Option<PathBuf>,
+    /// Exposure times in natural file-name order, comma-separated.
+    #[arg(long, value_delimiter = ',')]
+    pub exposures: Option<Vec<f64>>,
+    /// Fit options as JSON (`ResponseParams`).
+    #[arg(long)]
+    pub options: Option<String>,
+    #[command(flatten)]
+    pub common: CommonArgs,
+}
+
+/// Flags of `caliper run photometric-correct`.
+#[derive(Debug, Args)]
+pub struct PhotometricCorrectArgs {
+    /// A photometric document (or its `parameters.model` object) as JSON.
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Output gain [default: 1].
+    #[arg(long)]
+    pub gain: Option<f64>,
+    #[command(flatten)]
+    pub common: CommonArgs,
 }
 
 /// Flags of the `imu-*` commands.
@@ -187,6 +271,24 @@ pub fn run(cmd: RunCommand) -> Result<String, RunError> {
         RunCommand::ImuNoise(a) => run_imu("imu_noise", &a),
         RunCommand::ImuIntrinsics(a) => run_imu("imu_intrinsics", &a),
         RunCommand::ImuThermal(a) => run_imu("imu_thermal", &a),
+        RunCommand::Deblur(a) => run_deblur(&a),
+        RunCommand::PhotometricResponse(a) => run_photometric_response(&a),
+        RunCommand::Vignetting(a) => run_with_params("vignetting", a.params.as_deref(), &a.common),
+        RunCommand::PhotometricOnline(a) => {
+            run_with_params("photometric_online", a.params.as_deref(), &a.common)
+        }
+        RunCommand::PhotometricCorrect(a) => {
+            let text = std::fs::read_to_string(&a.model)?;
+            let v: Value = serde_json::from_str(&text)
+                .map_err(|e| RunError::Input(format!("{} is not JSON: {e}", a.model.display())))?;
+            // A whole document, or just its model.
+            let model = v.pointer("/parameters/model").cloned().unwrap_or(v);
+            let mut params = json!({"model": model});
+            if let Some(g) = a.gain {
+                params["gain"] = json!(g);
+            }
+            run_kind("photometric_correct", params, &a.common)
+        }
         RunCommand::CameraCalibration(a) => {
             let (cols, rows) = a
                 .board
@@ -224,6 +326,134 @@ pub fn run(cmd: RunCommand) -> Result<String, RunError> {
             }
         }
     }
+}
+
+fn run_with_params(
+    kind: &str,
+    params: Option<&str>,
+    common: &CommonArgs,
+) -> Result<String, RunError> {
+    let params = match params {
+        Some(p) => serde_json::from_str(p)
+            .map_err(|e| RunError::Input(format!("--params is not JSON: {e}")))?,
+        None => json!({}),
+    };
+    run_kind(kind, params, common)
+}
+
+fn run_photometric_response(a: &PhotometricResponseArgs) -> Result<String, RunError> {
+    let times = match (&a.times, &a.exposures) {
+        (Some(_), Some(_)) => {
+            return Err(RunError::Input(
+                "give --times or --exposures, not both".into(),
+            ));
+        }
+        (None, None) => {
+            return Err(RunError::Input(
+                "photometric-response needs exposure times: --times FILE or --exposures a,b,c"
+                    .into(),
+            ));
+        }
+        (None, Some(e)) => json!(e),
+        (Some(path), None) => {
+            let text = std::fs::read_to_string(path)?;
+            let entries = caliper_core::photometric::dso::read_times(&text)
+                .map_err(|e| RunError::Input(format!("{}: {e}", path.display())))?;
+            // Ids that name the images map by name; otherwise the order is the image order.
+            let images: Vec<String> = expand(&a.common.inputs)?
+                .iter()
+                .filter_map(|(p, _)| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+                .collect();
+            let stems: std::collections::HashMap<String, String> = images
+                .iter()
+                .map(|n| {
+                    (
+                        n.rsplit_once('.').map_or(n.as_str(), |x| x.0).to_string(),
+                        n.clone(),
+                    )
+                })
+                .collect();
+            if entries.iter().all(|e| stems.contains_key(&e.id)) {
+                let map: serde_json::Map<String, Value> = entries
+                    .iter()
+                    .filter_map(|e| stems.get(&e.id).map(|n| (n.clone(), json!(e.exposure_ms))))
+                    .collect();
+                Value::Object(map)
+            } else {
+                json!(entries.iter().map(|e| e.exposure_ms).collect::<Vec<_>>())
+            }
+        }
+    };
+    let mut params = json!({"exposure_times": times});
+    if let Some(o) = &a.options {
+        params["options"] = serde_json::from_str(o)
+            .map_err(|e| RunError::Input(format!("--options is not JSON: {e}")))?;
+    }
+    run_kind("photometric_response", params, &a.common)
+}
+
+fn run_deblur(a: &DeblurArgs) -> Result<String, RunError> {
+    use caliper_core::deconv::Psf;
+    let mut params = json!({});
+    if let Some(m) = &a.method {
+        params["method"] = json!(m);
+    }
+    if let Some(path) = &a.psf {
+        let bytes = std::fs::read(path)?;
+        let bad = |e: caliper_core::CoreError| RunError::Input(format!("{}: {e}", path.display()));
+        let head = &bytes[..bytes.len().min(64)];
+        let psf = if crate::ingest::sniff::sniff(head).is_image() {
+            let limits = caliper_core::io::ImageLimits::default();
+            let g = caliper_core::io::decode_gray8(&bytes, &limits).map_err(bad)?;
+            Psf::from_gray(&g).map_err(bad)?
+        } else {
+            let text = String::from_utf8(bytes)
+                .map_err(|_| RunError::Input(format!("{} is not text", path.display())))?;
+            if text.trim_start().starts_with('{') {
+                Psf::parse_json(&text).map_err(bad)?
+            } else {
+                Psf::parse_text(&text).map_err(bad)?
+            }
+        };
+        params["psf"] = serde_json::to_value(&psf).map_err(|e| RunError::Job(e.to_string()))?;
+    }
+    for (key, v) in [
+        ("iterations", a.iterations.map(|v| json!(v))),
+        ("nsr", a.nsr.map(|v| json!(v))),
+        ("tv_lambda", a.tv_lambda.map(|v| json!(v))),
+        ("kernel_size", a.kernel_size.map(|v| json!(v))),
+    ] {
+        if let Some(v) = v {
+            params[key] = v;
+        }
+    }
+    if let Some(path) = &a.gyro {
+        let text = std::fs::read_to_string(path)?;
+        let mut g: Value = serde_json::from_str(&text)
+            .map_err(|e| RunError::Input(format!("{} is not JSON: {e}", path.display())))?;
+        if let Some(cam) = &a.camera {
+            let text = std::fs::read_to_string(cam)?;
+            let doc: Value = serde_json::from_str(&text)
+                .map_err(|e| RunError::Input(format!("{} is not JSON: {e}", cam.display())))?;
+            let intr = doc
+                .pointer("/parameters/camera")
+                .or_else(|| doc.get("camera"))
+                .ok_or_else(|| {
+                    RunError::Input(format!(
+                        "{} is not a caliper.camera/v1 document (no parameters.camera)",
+                        cam.display()
+                    ))
+                })?;
+            for k in ["fx", "fy", "cx", "cy"] {
+                let v = intr.get(k).cloned().ok_or_else(|| {
+                    RunError::Input(format!("{}: the camera has no {k}", cam.display()))
+                })?;
+                g[k] = v;
+            }
+        }
+        params["gyro"] = g;
+    }
+    run_kind("deblur", params, &a.common)
 }
 
 fn run_imu(kind: &str, a: &ImuArgs) -> Result<String, RunError> {

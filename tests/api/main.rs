@@ -12,4 +12,5 @@ mod imu;
 mod jobs;
 mod offline;
 mod openapi;
+mod photometric;
 mod recovery;

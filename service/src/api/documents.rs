@@ -48,7 +48,8 @@ pub struct RevisionView {
 #[into_params(parameter_in = Query)]
 pub struct FormatQuery {
     /// Export format instead of the JSON document: `opencv-yaml`, `ros-yaml`, `kalibr-yaml`
-    /// or `json` (camera documents).
+    /// or `json` (camera documents), `kalibr-yaml` (imu_noise documents: Kalibr's imu.yaml),
+    /// `dso-pcalib` (photometric documents: DSO's pcalib.txt).
     pub format: Option<String>,
 }
 

@@ -43,7 +43,11 @@ use crate::state::AppState;
         crate::jobs::camera_calibration::CameraCalibParams,
         caliper_core::imu::ImuNoiseParams,
         caliper_core::imu::ImuIntrinsicsParams,
-        caliper_core::imu::ImuThermalParams
+        caliper_core::imu::ImuThermalParams,
+        crate::jobs::photometric::ResponseJobParams,
+        crate::jobs::photometric::VignettingJobParams,
+        crate::jobs::photometric::OnlineJobParams,
+        crate::jobs::photometric::CorrectJobParams
     )),
     modifiers(&ProblemCodes)
 )]

@@ -8,6 +8,7 @@ pub mod blur_score;
 pub mod camera_calibration;
 pub mod document;
 pub mod imu;
+pub mod photometric;
 pub mod worker;
 
 use std::sync::Arc;
@@ -116,12 +117,16 @@ pub trait JobKind: Send + Sync + 'static {
 
 /// Every job kind this build knows.
 pub fn kinds() -> &'static [&'static dyn JobKind] {
-    static KINDS: [&dyn JobKind; 5] = [
+    static KINDS: [&dyn JobKind; 9] = [
         &blur_score::BlurScore,
         &camera_calibration::CameraCalibration,
         &imu::ImuNoise,
         &imu::ImuIntrinsics,
         &imu::ImuThermal,
+        &photometric::PhotometricResponse,
+        &photometric::Vignetting,
+        &photometric::PhotometricOnline,
+        &photometric::PhotometricCorrect,
     ];
     &KINDS
 }

@@ -1,0 +1,201 @@
+//! Photometric job kinds end to end, on synthetic renders with a known response, vignetting
+//! and exposures (`caliper_core::photometric::synth`): the fitted response comes back close to
+//! the truth and strictly increasing, DSO's files are artifacts, bad exposure lists are
+//! refused, and the offline command writes `pcalib.txt`, `vignette.png` and `times.txt`.
+
+use std::io::Cursor;
+
+use caliper_core::photometric::synth::{
+    SynthCamera, render_ae_sequence, render_bracket, render_flats,
+};
+use caliper_core::photometric::{PhotoImage, dso, metrics};
+use image::{DynamicImage, ImageBuffer, ImageFormat, Luma};
+use serde_json::{Value, json};
+
+use crate::common::*;
+
+fn png(img: &PhotoImage) -> Vec<u8> {
+    let dynimg = if img.max_level == 255 {
+        let buf: ImageBuffer<Luma<u8>, Vec<u8>> = ImageBuffer::from_raw(
+            img.width as u32,
+            img.height as u32,
+            img.data.iter().map(|&v| v as u8).collect(),
+        )
+        .expect("size");
+        DynamicImage::ImageLuma8(buf)
+    } else {
+        let buf: ImageBuffer<Luma<u16>, Vec<u16>> =
+            ImageBuffer::from_raw(img.width as u32, img.height as u32, img.data.clone())
+                .expect("size");
+        DynamicImage::ImageLuma16(buf)
+    };
+    let mut out = Cursor::new(Vec::new());
+    dynimg.write_to(&mut out, ImageFormat::Png).expect("png");
+    out.into_inner()
+}
+
+/// RMSE between two inverse responses sampled at 256 levels, both on [0, 1].
+fn rmse(a: &[f64], b: &[f64]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    (a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / a.len() as f64).sqrt()
+}
+
+async fn artifact_text(s: &TestServer, job: &str, name: &str) -> String {
+    let r = reqwest::get(s.url(&format!("/v1/jobs/{job}/artifacts/{name}")))
+        .await
+        .expect("artifact");
+    assert_eq!(r.status(), 200, "artifact {name}");
+    r.text().await.expect("text")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn photometric_response_recovers_the_curve_from_a_bracket() {
+    let cam = SynthCamera::reference(96, 72, 3);
+    let exposures = [0.25, 0.5, 1.0, 2.0, 4.0, 8.0];
+    let images = render_bracket(&cam, &exposures);
+    let files: Vec<(String, Vec<u8>)> = images
+        .iter()
+        .enumerate()
+        .map(|(i, im)| (format!("b{i}.png"), png(im)))
+        .collect();
+    let s = start().await;
+    let ds = s.dataset(as_refs(&files)).await;
+    // Exposure times by name, in ms (only ratios matter).
+    let times: serde_json::Map<String, Value> = files
+        .iter()
+        .zip(exposures)
+        .map(|((n, _), e)| (n.clone(), json!(e * 10.0)))
+        .collect();
+    let id = s
+        .job(json!({"kind": "photometric_response", "dataset": ds, "device": "cam-9", "sensor": "cam0",
+                    "params": {"exposure_times": times}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    assert_eq!(doc["schema"], "caliper.photometric/v1");
+    let inv: Vec<f64> = serde_json::from_value(doc["parameters"]["model"]["inverse_256"].clone())
+        .expect("inverse table");
+    assert!(inv.windows(2).all(|w| w[1] > w[0]), "strictly increasing");
+    let truth = cam.response.inverse(256).values;
+    let e = rmse(&inv, &truth);
+    assert!(e < 0.01, "response RMSE {e}");
+
+    // DSO's pcalib.txt: as an artifact and as an export of the stored revision, identical.
+    let pcalib = artifact_text(&s, &id, "pcalib.txt").await;
+    let parsed = dso::read_pcalib(&pcalib).expect("valid pcalib");
+    assert_eq!(parsed.values.len(), 256);
+    let r = reqwest::get(
+        s.url("/v1/devices/cam-9/documents/cam0/photometric_response/latest?format=dso-pcalib"),
+    )
+    .await
+    .expect("export");
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.text().await.expect("text"), pcalib);
+
+    // Bad exposure times: refused before queueing, with the field.
+    let (status, p) = s
+        .post_json(
+            "/v1/jobs",
+            &json!({"kind": "photometric_response", "dataset": ds,
+                    "params": {"exposure_times": [1.0, -2.0]}}),
+        )
+        .await;
+    assert_eq!(status, 422, "{p}");
+    assert_eq!(p["field"], "params.exposure_times", "{p}");
+    // A list of the wrong length: the job fails and says why.
+    let id = s
+        .job(json!({"kind": "photometric_response", "dataset": ds,
+                    "params": {"exposure_times": [1.0, 2.0]}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "failed", "{done}");
+    assert!(
+        done["error"].to_string().contains("6 images"),
+        "{}",
+        done["error"]
+    );
+    s.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn vignetting_from_flat_fields() {
+    let mut cam = SynthCamera::reference(120, 90, 5);
+    cam.response = caliper_core::photometric::ResponseModel::Gamma { gamma: 1.0 };
+    cam.sixteen_bit = true;
+    let flats = render_flats(&cam, &[0.3, 0.5, 0.7]);
+    let files: Vec<(String, Vec<u8>)> = flats
+        .iter()
+        .enumerate()
+        .map(|(i, im)| (format!("flat{i}.png"), png(im)))
+        .collect();
+    let s = start().await;
+    let ds = s.dataset(as_refs(&files)).await;
+    let id = s.job(json!({"kind": "vignetting", "dataset": ds})).await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    let v: Vec<f64> =
+        serde_json::from_value(doc["parameters"]["vignette"]["v"].clone()).expect("coefficients");
+    for (k, (got, want)) in v.iter().zip(cam.vignette).enumerate() {
+        assert!((got - want).abs() < 5e-3, "v{}: {got} vs {want}", k + 1);
+    }
+    let r = reqwest::get(s.url(&format!("/v1/jobs/{id}/artifacts/vignette.png")))
+        .await
+        .expect("png");
+    let img = image::load_from_memory(&r.bytes().await.expect("bytes")).expect("decodes");
+    assert_eq!(img.color(), image::ColorType::L16);
+    assert_eq!((img.width(), img.height()), (120, 90));
+    s.stop().await;
+}
+
+#[test]
+fn offline_photometric_online_writes_dso_files() {
+    let cam = SynthCamera::reference(160, 120, 11);
+    let seq = render_ae_sequence(&cam, 80);
+    let dir = tempfile::tempdir().expect("tmp");
+    let frames = dir.path().join("frames");
+    std::fs::create_dir_all(&frames).expect("mkdir");
+    for (i, f) in seq.frames.iter().enumerate() {
+        std::fs::write(frames.join(format!("{i:05}.png")), png(f)).expect("write");
+    }
+    let out = dir.path().join("out");
+    let o = std::process::Command::new(caliper_bin())
+        .args(["run", "photometric-online", "--out"])
+        .arg(&out)
+        .arg(&frames)
+        .output()
+        .expect("run caliper");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let doc: Value = serde_json::from_slice(&o.stdout).expect("document");
+    assert_eq!(doc["schema"], "caliper.photometric/v1");
+    let pcalib = std::fs::read_to_string(out.join("pcalib.txt")).expect("pcalib.txt");
+    dso::read_pcalib(&pcalib).expect("strictly increasing pcalib");
+    let parsed_inverse = |t: &str| dso::read_pcalib(t).expect("pcalib");
+    let times = std::fs::read_to_string(out.join("times.txt")).expect("times.txt");
+    let entries = dso::read_times(&times).expect("valid times.txt");
+    assert_eq!(entries.len(), 80);
+    assert_eq!(entries[3].id, "00003");
+    // With the γ gauge aligned to the truth (the fit fixes f(0.5) = 0.5, the truth does not):
+    // response and exposures close to the truth.
+    let truth = cam.response.inverse(256);
+    let (alpha, resp_rmse) = metrics::gamma_align(&parsed_inverse(&pcalib), &truth);
+    assert!(resp_rmse < 0.02, "response RMSE {resp_rmse} (α {alpha})");
+    let fit: Vec<f64> = entries.iter().map(|e| e.exposure_ms).collect();
+    let exp_err = metrics::exposure_error_pct(&fit, &seq.exposures, alpha);
+    assert!(exp_err < 6.0, "exposure RMS error {exp_err} %");
+    let v = image::open(out.join("vignette.png")).expect("vignette.png");
+    assert_eq!(v.color(), image::ColorType::L16);
+    assert_eq!((v.width(), v.height()), (160, 120));
+
+    // A non-increasing pcalib is refused by the reader with the index.
+    let mut bad: Vec<f64> = (0..256).map(f64::from).collect();
+    bad[100] = 98.0;
+    let text = bad
+        .iter()
+        .map(|v| v.to_string())
+        .collect::<Vec<_>>()
+        .join(" ");
+    let err = dso::read_pcalib(&text).expect_err("non-increasing");
+    assert!(err.to_string().contains("100"), "{err}");
+}
