@@ -12,9 +12,9 @@ mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::Mutex;
 use std::time::Instant;
 
-use caliper_core::NoProgress;
 use caliper_core::io::ImageLimits;
 use caliper_core::photometric::dso::{read_times, read_vignette_png};
 use caliper_core::photometric::metrics::{
@@ -24,6 +24,7 @@ use caliper_core::photometric::{
     InverseResponse, OnlineParams, PhotoImage, ResponseParams, photometric_online,
     photometric_response,
 };
+use caliper_core::{NoProgress, Progress};
 use serde_json::Value;
 
 fn data_dir() -> PathBuf {
@@ -59,6 +60,27 @@ fn f64s(v: &Value) -> Vec<f64> {
     v.as_array()
         .map(|a| a.iter().filter_map(Value::as_f64).collect())
         .unwrap_or_default()
+}
+
+/// Records when each named step starts (the algorithms report their steps through
+/// [`Progress`]).
+struct StepTimer {
+    t0: Instant,
+    steps: Mutex<Vec<(String, f64)>>,
+}
+
+impl Progress for StepTimer {
+    fn report(&self, step: &str, _done: u64, _total: u64) {
+        if let Ok(mut s) = self.steps.lock()
+            && s.last().is_none_or(|l| l.0 != step)
+        {
+            s.push((step.to_string(), self.t0.elapsed().as_secs_f64()));
+        }
+    }
+
+    fn is_canceled(&self) -> bool {
+        false
+    }
 }
 
 struct Peer {
@@ -234,6 +256,10 @@ fn run(data: &Path, bracket: &Path, ae: &Path) -> Result<(), String> {
         on.diagnostics.iterations,
         on.diagnostics.residual_rms_levels,
         on.diagnostics.monotone
+    );
+    println!(
+        "online stages: {}; total {online_s:.2} s",
+        stages.join(", ")
     );
     Ok(())
 }
