@@ -186,10 +186,22 @@ fn run(data: &Path, bracket: &Path, ae: &Path) -> Result<(), String> {
     let vig_png = std::fs::read(ae.join("vignette.png")).map_err(|e| e.to_string())?;
     let truth_v =
         read_vignette_png(&vig_png, &ImageLimits::default(), None).map_err(|e| e.to_string())?;
-    let t0 = Instant::now();
-    let on = photometric_online(&frames, &OnlineParams::default(), &NoProgress)
-        .map_err(|e| e.to_string())?;
-    let online_s = t0.elapsed().as_secs_f64();
+    let timer = StepTimer {
+        t0: Instant::now(),
+        steps: Mutex::new(Vec::new()),
+    };
+    let on =
+        photometric_online(&frames, &OnlineParams::default(), &timer).map_err(|e| e.to_string())?;
+    let online_s = timer.t0.elapsed().as_secs_f64();
+    let stages: Vec<String> = timer
+        .steps
+        .lock()
+        .map(|s| {
+            s.iter()
+                .map(|(n, t)| format!("{n} from {t:.2} s"))
+                .collect()
+        })
+        .unwrap_or_default();
     let fit = InverseResponse {
         values: on.model.inverse_256.clone(),
     };
