@@ -83,6 +83,26 @@ impl Progress for StepTimer {
     }
 }
 
+/// CPU seconds (user + system) of this process so far, from `/proc/self/stat` (Linux; NaN
+/// elsewhere): on a loaded machine wall time overstates what the algorithm costs.
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return f64::NAN;
+    };
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let Some(rest) = stat.rsplit_once(')').map(|(_, r)| r) else {
+        return f64::NAN;
+    };
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |i: usize| {
+        f.get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(f64::NAN)
+    };
+    // Linux reports in USER_HZ, 100 on every mainstream configuration.
+    (tick(11) + tick(12)) / 100.0
+}
+
 struct Peer {
     debevec_rmse: f64,
     robertson_rmse: f64,
@@ -186,6 +206,7 @@ fn run(data: &Path, bracket: &Path, ae: &Path) -> Result<(), String> {
     let vig_png = std::fs::read(ae.join("vignette.png")).map_err(|e| e.to_string())?;
     let truth_v =
         read_vignette_png(&vig_png, &ImageLimits::default(), None).map_err(|e| e.to_string())?;
+    let cpu0 = cpu_seconds();
     let timer = StepTimer {
         t0: Instant::now(),
         steps: Mutex::new(Vec::new()),
@@ -193,6 +214,7 @@ fn run(data: &Path, bracket: &Path, ae: &Path) -> Result<(), String> {
     let on =
         photometric_online(&frames, &OnlineParams::default(), &timer).map_err(|e| e.to_string())?;
     let online_s = timer.t0.elapsed().as_secs_f64();
+    let online_cpu = cpu_seconds() - cpu0;
     let stages: Vec<String> = timer
         .steps
         .lock()
@@ -270,8 +292,9 @@ fn run(data: &Path, bracket: &Path, ae: &Path) -> Result<(), String> {
         on.diagnostics.monotone
     );
     println!(
-        "online stages: {}; total {online_s:.2} s",
-        stages.join(", ")
+        "online stages: {}; total {online_s:.2} s wall, {online_cpu:.2} s CPU ({} threads)",
+        stages.join(", "),
+        rayon::current_num_threads()
     );
     Ok(())
 }
