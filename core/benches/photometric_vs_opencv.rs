@@ -12,9 +12,9 @@ mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::Mutex;
 use std::time::Instant;
 
-use caliper_core::NoProgress;
 use caliper_core::io::ImageLimits;
 use caliper_core::photometric::dso::{read_times, read_vignette_png};
 use caliper_core::photometric::metrics::{
@@ -24,6 +24,7 @@ use caliper_core::photometric::{
     InverseResponse, OnlineParams, PhotoImage, ResponseParams, photometric_online,
     photometric_response,
 };
+use caliper_core::{NoProgress, Progress};
 use serde_json::Value;
 
 fn data_dir() -> PathBuf {
@@ -59,6 +60,47 @@ fn f64s(v: &Value) -> Vec<f64> {
     v.as_array()
         .map(|a| a.iter().filter_map(Value::as_f64).collect())
         .unwrap_or_default()
+}
+
+/// Records when each named step starts (the algorithms report their steps through
+/// [`Progress`]).
+struct StepTimer {
+    t0: Instant,
+    steps: Mutex<Vec<(String, f64)>>,
+}
+
+impl Progress for StepTimer {
+    fn report(&self, step: &str, _done: u64, _total: u64) {
+        if let Ok(mut s) = self.steps.lock()
+            && s.last().is_none_or(|l| l.0 != step)
+        {
+            s.push((step.to_string(), self.t0.elapsed().as_secs_f64()));
+        }
+    }
+
+    fn is_canceled(&self) -> bool {
+        false
+    }
+}
+
+/// CPU seconds (user + system) of this process so far, from `/proc/self/stat` (Linux; NaN
+/// elsewhere): on a loaded machine wall time overstates what the algorithm costs.
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return f64::NAN;
+    };
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let Some(rest) = stat.rsplit_once(')').map(|(_, r)| r) else {
+        return f64::NAN;
+    };
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |i: usize| {
+        f.get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(f64::NAN)
+    };
+    // Linux reports in USER_HZ, 100 on every mainstream configuration.
+    (tick(11) + tick(12)) / 100.0
 }
 
 struct Peer {
@@ -164,10 +206,24 @@ fn run(data: &Path, bracket: &Path, ae: &Path) -> Result<(), String> {
     let vig_png = std::fs::read(ae.join("vignette.png")).map_err(|e| e.to_string())?;
     let truth_v =
         read_vignette_png(&vig_png, &ImageLimits::default(), None).map_err(|e| e.to_string())?;
-    let t0 = Instant::now();
-    let on = photometric_online(&frames, &OnlineParams::default(), &NoProgress)
-        .map_err(|e| e.to_string())?;
-    let online_s = t0.elapsed().as_secs_f64();
+    let cpu0 = cpu_seconds();
+    let timer = StepTimer {
+        t0: Instant::now(),
+        steps: Mutex::new(Vec::new()),
+    };
+    let on =
+        photometric_online(&frames, &OnlineParams::default(), &timer).map_err(|e| e.to_string())?;
+    let online_s = timer.t0.elapsed().as_secs_f64();
+    let online_cpu = cpu_seconds() - cpu0;
+    let stages: Vec<String> = timer
+        .steps
+        .lock()
+        .map(|s| {
+            s.iter()
+                .map(|(n, t)| format!("{n} from {t:.2} s"))
+                .collect()
+        })
+        .unwrap_or_default();
     let fit = InverseResponse {
         values: on.model.inverse_256.clone(),
     };
@@ -234,6 +290,11 @@ fn run(data: &Path, bracket: &Path, ae: &Path) -> Result<(), String> {
         on.diagnostics.iterations,
         on.diagnostics.residual_rms_levels,
         on.diagnostics.monotone
+    );
+    println!(
+        "online stages: {}; total {online_s:.2} s wall, {online_cpu:.2} s CPU ({} threads)",
+        stages.join(", "),
+        rayon::current_num_threads()
     );
     Ok(())
 }

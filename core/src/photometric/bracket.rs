@@ -170,6 +170,7 @@ pub fn photometric_response(
         gamma_gauge: params.estimate_exposures.then_some(params.gamma_gauge),
         huber: params.huber_levels / 255.0,
         max_iterations: params.max_iterations,
+        label: "response",
     };
     let rep = refine(&obs, &cfg, &mut state, progress)?;
     let response = ResponseModel::Emor { c: state.c };

@@ -14,6 +14,7 @@
 //! stiff one-sided penalty on every basis segment.
 
 use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
 
 use super::emor::{EMOR_DIM, EMOR_SAMPLES, emor_basis};
 use super::response::emor_eval;
@@ -44,6 +45,8 @@ pub(crate) struct JointConfig {
     /// Huber threshold in normalised intensity.
     pub huber: f64,
     pub max_iterations: usize,
+    /// Step name for progress reports.
+    pub label: &'static str,
 }
 
 /// Current estimate.
@@ -119,14 +122,23 @@ fn c_penalties(cfg: &JointConfig, curve: &[f64]) -> Vec<(f64, [f64; EMOR_DIM])> 
 
 fn total_cost(obs: &[Obs], cfg: &JointConfig, s: &JointState, wpen: f64) -> f64 {
     let curve = emor_basis().curve(&s.c);
-    let mut cost = 0.0;
-    for o in obs {
-        let e = s.log_e[o.frame as usize].exp()
-            * vignette(&s.v, f64::from(o.r2))
-            * s.log_l[o.point as usize].exp();
-        let r = f64::from(o.value) - emor_eval(&curve, e).f;
-        cost += f64::from(o.weight) * huber_rho(r, cfg.huber);
-    }
+    // Fixed chunks summed in order: the same result on any number of threads.
+    let parts: Vec<f64> = obs
+        .par_chunks(8192)
+        .map(|chunk| {
+            chunk
+                .iter()
+                .map(|o| {
+                    let e = s.log_e[o.frame as usize].exp()
+                        * vignette(&s.v, f64::from(o.r2))
+                        * s.log_l[o.point as usize].exp();
+                    let r = f64::from(o.value) - emor_eval(&curve, e).f;
+                    f64::from(o.weight) * huber_rho(r, cfg.huber)
+                })
+                .sum::<f64>()
+        })
+        .collect();
+    let mut cost: f64 = parts.iter().sum();
     if cfg.fit_response {
         for (r, _) in c_penalties(cfg, &curve) {
             cost += wpen * r * r;
@@ -173,75 +185,23 @@ pub(crate) fn refine(
             start = i;
         }
     }
-    let mut scratch = vec![0.0; dim];
-    let mut mark = vec![false; dim];
-    let mut touched: Vec<usize> = Vec::new();
     for it in 0..cfg.max_iterations {
         progress.check()?;
-        progress.report("refine", it as u64, cfg.max_iterations as u64);
+        progress.report(cfg.label, it as u64, cfg.max_iterations as u64);
         report.iterations = it + 1;
         let curve = emor_basis().curve(&state.c);
+        // Deterministic parallel accumulation: fixed chunks, summed in order.
+        let parts: Vec<(DMatrix<f64>, DVector<f64>, Vec<PointBlock>)> = ranges
+            .par_chunks(POINT_CHUNK)
+            .map(|chunk| accumulate(obs, chunk, state, &curve, cfg, &lay))
+            .collect();
         let mut h = DMatrix::<f64>::zeros(dim, dim);
         let mut g = DVector::<f64>::zeros(dim);
-        // Per point: (hl, bl, cross terms) for back-substitution.
         let mut point_blocks: Vec<PointBlock> = Vec::with_capacity(ranges.len());
-        let mut hll_diag = Vec::with_capacity(ranges.len());
-        for rg in &ranges {
-            let pi = obs[rg.start].point as usize;
-            let l = state.log_l[pi].exp();
-            let (mut hl, mut bl) = (0.0, 0.0);
-            touched.clear();
-            for o in &obs[rg.clone()] {
-                let r2 = f64::from(o.r2);
-                let vg = vignette(&state.v, r2);
-                let e = state.log_e[o.frame as usize].exp() * vg * l;
-                let ev = emor_eval(&curve, e);
-                let r = f64::from(o.value) - ev.f;
-                let wh = if r.abs() <= cfg.huber {
-                    1.0
-                } else {
-                    cfg.huber / r.abs()
-                };
-                let w = f64::from(o.weight) * wh;
-                let de = ev.df * e;
-                let mut jac = [(0usize, 0.0f64); EMOR_DIM + 4];
-                let mut nj = 0;
-                for k in 0..lay.nc {
-                    jac[nj] = (k, ev.dc[k]);
-                    nj += 1;
-                }
-                let mut rp = r2;
-                for m in 0..lay.nv {
-                    jac[nj] = (lay.nc + m, de / vg * rp);
-                    nj += 1;
-                    rp *= r2;
-                }
-                if let Some(ei) = lay.e_index(o.frame) {
-                    jac[nj] = (ei, de);
-                    nj += 1;
-                }
-                for a in 0..nj {
-                    let (ia, ja) = jac[a];
-                    g[ia] += w * ja * r;
-                    for &(ib, jb) in &jac[a..nj] {
-                        h[(ia, ib)] += w * ja * jb;
-                    }
-                    if !mark[ia] {
-                        mark[ia] = true;
-                        touched.push(ia);
-                    }
-                    scratch[ia] += w * ja * de;
-                }
-                hl += w * de * de;
-                bl += w * de * r;
-            }
-            let cross: Vec<(usize, f64)> = touched.iter().map(|&i| (i, scratch[i])).collect();
-            for &i in &touched {
-                scratch[i] = 0.0;
-                mark[i] = false;
-            }
-            hll_diag.push(hl);
-            point_blocks.push((hl, bl, cross));
+        for (ph, pg, pb) in parts {
+            h += ph;
+            g += pg;
+            point_blocks.extend(pb);
         }
         // Symmetrise the upper-triangle accumulation.
         for a in 0..dim {
@@ -391,4 +351,83 @@ pub(crate) fn gauge_start(state: &mut JointState, gauge: f64) {
     for l in state.log_e.iter_mut().chain(state.log_l.iter_mut()) {
         *l /= k;
     }
+}
+
+/// Points per parallel work item of the normal-equation accumulation.
+const POINT_CHUNK: usize = 512;
+
+/// Normal equations of a chunk of points: the dense block (upper triangle), its right-hand
+/// side and each point's block for the Schur complement.
+fn accumulate(
+    obs: &[Obs],
+    ranges: &[std::ops::Range<usize>],
+    state: &JointState,
+    curve: &[f64],
+    cfg: &JointConfig,
+    lay: &Layout,
+) -> (DMatrix<f64>, DVector<f64>, Vec<PointBlock>) {
+    let dim = lay.dim();
+    let mut scratch = vec![0.0; dim];
+    let mut mark = vec![false; dim];
+    let mut touched: Vec<usize> = Vec::new();
+    let mut h = DMatrix::<f64>::zeros(dim, dim);
+    let mut g = DVector::<f64>::zeros(dim);
+    let mut point_blocks: Vec<PointBlock> = Vec::with_capacity(ranges.len());
+    for rg in ranges {
+        let pi = obs[rg.start].point as usize;
+        let l = state.log_l[pi].exp();
+        let (mut hl, mut bl) = (0.0, 0.0);
+        touched.clear();
+        for o in &obs[rg.clone()] {
+            let r2 = f64::from(o.r2);
+            let vg = vignette(&state.v, r2);
+            let e = state.log_e[o.frame as usize].exp() * vg * l;
+            let ev = emor_eval(curve, e);
+            let r = f64::from(o.value) - ev.f;
+            let wh = if r.abs() <= cfg.huber {
+                1.0
+            } else {
+                cfg.huber / r.abs()
+            };
+            let w = f64::from(o.weight) * wh;
+            let de = ev.df * e;
+            let mut jac = [(0usize, 0.0f64); EMOR_DIM + 4];
+            let mut nj = 0;
+            for k in 0..lay.nc {
+                jac[nj] = (k, ev.dc[k]);
+                nj += 1;
+            }
+            let mut rp = r2;
+            for m in 0..lay.nv {
+                jac[nj] = (lay.nc + m, de / vg * rp);
+                nj += 1;
+                rp *= r2;
+            }
+            if let Some(ei) = lay.e_index(o.frame) {
+                jac[nj] = (ei, de);
+                nj += 1;
+            }
+            for a in 0..nj {
+                let (ia, ja) = jac[a];
+                g[ia] += w * ja * r;
+                for &(ib, jb) in &jac[a..nj] {
+                    h[(ia, ib)] += w * ja * jb;
+                }
+                if !mark[ia] {
+                    mark[ia] = true;
+                    touched.push(ia);
+                }
+                scratch[ia] += w * ja * de;
+            }
+            hl += w * de * de;
+            bl += w * de * r;
+        }
+        let cross: Vec<(usize, f64)> = touched.iter().map(|&i| (i, scratch[i])).collect();
+        for &i in &touched {
+            scratch[i] = 0.0;
+            mark[i] = false;
+        }
+        point_blocks.push((hl, bl, cross));
+    }
+    (h, g, point_blocks)
 }

@@ -424,6 +424,7 @@ fn joint_refinement_from_ideal_tracks() {
             gamma_gauge: None,
             huber: 3.0 / 255.0,
             max_iterations: 5,
+            label: "exposures",
         };
         refine(&obs, &cfg, &mut st, &NoProgress).unwrap();
         cfg.fit_response = true;

@@ -123,8 +123,9 @@ fn track_one(
     p: [f32; 2],
     guess: [f32; 2],
     cfg: &KltConfig,
+    max_levels: usize,
 ) -> Option<[f32; 2]> {
-    let nl = a.levels.len().min(b.levels.len());
+    let nl = a.levels.len().min(b.levels.len()).min(max_levels);
     let hw = cfg.half_window;
     let npx = ((2 * hw + 1) * (2 * hw + 1)) as usize;
     let mut d = [guess[0] - p[0], guess[1] - p[1]];
@@ -194,8 +195,8 @@ pub(crate) fn track(
     guess: [f32; 2],
     cfg: &KltConfig,
 ) -> Option<[f32; 2]> {
-    let q = track_one(a, b, p, guess, cfg)?;
-    let back = track_one(b, a, q, p, cfg)?;
+    let q = track_one(a, b, p, guess, cfg, usize::MAX)?;
+    let back = track_one(b, a, q, p, cfg, usize::MAX)?;
     let fb = ((back[0] - p[0]).powi(2) + (back[1] - p[1]).powi(2)).sqrt();
     (fb <= cfg.max_fb).then_some(q)
 }
