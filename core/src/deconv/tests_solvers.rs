@@ -375,3 +375,57 @@ fn tv_cancels() {
         Err(CoreError::Canceled)
     ));
 }
+
+#[test]
+#[ignore = "debug print"]
+fn blind_debug() {
+    let sharp = scene(192, 192);
+    let truth = Psf::motion(13.0, 40.0).expect("motion");
+    let blurred = add_noise(&blur_reflect(&sharp, &truth), 0.005, 11);
+    let lams: Vec<f64> = std::env::var("LAMS").unwrap_or("0.004,0.002,0.001,0.0005".into()).split(',').map(|v| v.parse().expect("f")).collect();
+    let regs: Vec<f64> = std::env::var("REGS").unwrap_or("2".into()).split(',').map(|v| v.parse().expect("f")).collect();
+    for (lam, reg) in lams.iter().flat_map(|l| regs.iter().map(move |r| (*l, *r))) {
+        let params = BlindParams {
+            kernel_size: Some(21),
+            lambda_grad: lam,
+            kernel_reg: reg,
+            ..BlindParams::default()
+        };
+        let out = blind_deconv(&blurred, &params, &NoProgress).expect("k");
+        let with_truth = tv_deconv(&blurred, &truth, &params.final_tv, &NoProgress).expect("tv");
+        let ratio = error_ratio_aligned(&sharp, &out.image, &with_truth, 12, 4).expect("ratio");
+        eprintln!("lambda {lam} reg {reg}: ratio {ratio:.2}");
+    }
+}
+
+#[test]
+#[ignore = "debug print, needs /work/shared"]
+fn blind_debug_camera() {
+    let Some(full) = super::tests::load_png("/work/shared/data/blur/skimage/camera.png") else {
+        return;
+    };
+    // 2× box downsample then centre 255 crop.
+    let (w, h) = (full.width / 2, full.height / 2);
+    let half: Vec<f32> = (0..w * h)
+        .map(|i| {
+            let (x, y) = (2 * (i % w), 2 * (i / w));
+            (full.at(x, y) + full.at(x + 1, y) + full.at(x, y + 1) + full.at(x + 1, y + 1)) / 4.0
+        })
+        .collect();
+    let (x0, y0) = ((w - 255) / 2, (h - 255) / 2);
+    let sharp = Plane::new(
+        255,
+        255,
+        (0..255 * 255).map(|i| half[(y0 + i / 255) * w + x0 + i % 255]).collect(),
+    )
+    .expect("plane");
+    let ang: f64 = std::env::var("ANG").map_or(135.0, |v| v.parse().expect("f"));
+    let len: f64 = std::env::var("LEN").map_or(21.0, |v| v.parse().expect("f"));
+    let truth = Psf::motion(len, ang).expect("motion");
+    let blurred = add_noise(&blur_reflect(&sharp, &truth), 0.01, 11);
+    let params = BlindParams::default();
+    let out = blind_deconv(&blurred, &params, &NoProgress).expect("k");
+    let with_truth = tv_deconv(&blurred, &truth, &params.final_tv, &NoProgress).expect("tv");
+    let ratio = error_ratio_aligned(&sharp, &out.image, &with_truth, 20, 6).expect("ratio");
+    eprintln!("ratio {ratio:.2}");
+}
