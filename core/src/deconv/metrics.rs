@@ -130,3 +130,41 @@ pub fn error_ratio(
     }
     Ok(est / truth)
 }
+
+/// [`error_ratio`] with the estimate-based restoration allowed to move by up to `max_shift` px in
+/// each direction (the smallest SSD wins), as in Levin et al.'s evaluation code: a blind kernel is
+/// only defined up to a translation, which shifts the restored image without making it worse.
+/// `border` must exceed `max_shift`.
+pub fn error_ratio_aligned(
+    sharp: &Plane,
+    with_estimate: &Plane,
+    with_truth: &Plane,
+    border: usize,
+    max_shift: usize,
+) -> CoreResult<f64> {
+    let base = error_ratio(sharp, with_estimate, with_truth, border)?;
+    if max_shift >= border {
+        return Err(CoreError::param("max_shift", "must be below the border"));
+    }
+    let truth = ssd(sharp, with_truth, border);
+    if truth <= 0.0 {
+        return Ok(base);
+    }
+    let m = max_shift as isize;
+    let mut best = f64::INFINITY;
+    for dy in -m..=m {
+        for dx in -m..=m {
+            let mut s = 0.0;
+            for y in border..sharp.height - border {
+                for x in border..sharp.width - border {
+                    let e =
+                        with_estimate.at((x as isize + dx) as usize, (y as isize + dy) as usize);
+                    let d = f64::from(sharp.at(x, y)) - f64::from(e);
+                    s += d * d;
+                }
+            }
+            best = best.min(s);
+        }
+    }
+    Ok(best / truth)
+}

@@ -9,23 +9,45 @@
 //!   domain; noise level estimated from the image when not given.
 //! * [`richardson_lucy`]: multiplicative EM iterations with the unknown-boundary model of
 //!   Bertero & Boccacci (2005), so that borders do not drive divergence.
+//! * [`tv_deconv`]: total-variation ADMM with the unknown-boundary data term (the best non-blind
+//!   result).
+//! * [`blind_deconv`] / [`estimate_kernel`]: coarse-to-fine L0-gradient kernel estimation
+//!   (Pan et al. 2014/2017), then TV; [`blind_richardson_lucy`] as MATLAB `deconvblind`.
+//! * [`gyro_psf`]: the kernel drawn from a gyro trace and the pinhole intrinsics (Joshi et al. 2010).
+//! * [`deblur_image`]: one entry point for 8/16-bit grey/RGB(A) images, any of the above.
 //! * [`psnr`], [`ssim`], [`error_ratio`]: quality against a reference.
 
+mod blind;
+mod blind_rl;
 mod boundary;
+mod color;
+mod deblur;
 mod fft;
+mod gyro;
 mod metrics;
+mod ops;
 mod psf;
+mod resample;
 mod rl;
+mod tv;
 mod wiener;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_solvers;
 
+pub use blind::{BlindOutput, BlindParams, blind_deconv, estimate_kernel};
+pub use blind_rl::blind_richardson_lucy;
 pub use boundary::{PadLayout, reflect};
+pub use color::{ChannelLayout, SampleDepth, SplitImage, merge_image, split_image};
+pub use deblur::{DeblurMethod, DeblurOutput, DeblurParams, deblur_image, psf_png};
 pub use fft::{Fft2, fast_len, is_smooth};
-pub use metrics::{error_ratio, psnr, ssim};
+pub use gyro::{GyroPsfParams, GyroSample, gyro_psf, gyro_psf_at, gyro_psf_grid};
+pub use metrics::{error_ratio, error_ratio_aligned, psnr, ssim};
 pub use psf::{MAX_PSF_SIZE, Psf};
-pub use rl::richardson_lucy;
+pub use rl::{MAX_RL_ITERATIONS, richardson_lucy};
+pub use tv::{MAX_TV_ITERATIONS, TvParams, auto_tv_lambda, tv_deconv};
 pub use wiener::{estimate_noise_sigma, wiener};
 
 use crate::error::{CoreError, CoreResult};

@@ -4,7 +4,7 @@ use crate::io::Gray;
 use crate::progress::NoProgress;
 
 /// Deterministic "natural-ish" test image: smooth shading, hard-edged shapes, a textured patch.
-fn scene(w: usize, h: usize) -> Plane {
+pub(super) fn scene(w: usize, h: usize) -> Plane {
     let mut data = Vec::with_capacity(w * h);
     for y in 0..h {
         for x in 0..w {
@@ -27,7 +27,7 @@ fn scene(w: usize, h: usize) -> Plane {
 }
 
 /// Gaussian noise from a fixed-seed xorshift + Box-Muller (no rand dependency).
-fn add_noise(img: &Plane, sigma: f32, seed: u64) -> Plane {
+pub(super) fn add_noise(img: &Plane, sigma: f32, seed: u64) -> Plane {
     let mut s = seed | 1;
     let mut uniform = move || {
         s ^= s << 13;
@@ -48,7 +48,7 @@ fn add_noise(img: &Plane, sigma: f32, seed: u64) -> Plane {
 }
 
 /// True convolution with reflect borders, as `scipy.ndimage.convolve(mode='reflect')`.
-fn blur_reflect(img: &Plane, psf: &Psf) -> Plane {
+pub(super) fn blur_reflect(img: &Plane, psf: &Psf) -> Plane {
     let (cx, cy) = ((psf.width / 2) as isize, (psf.height / 2) as isize);
     let mut data = vec![0.0f32; img.data.len()];
     for y in 0..img.height {
@@ -379,7 +379,7 @@ fn ssim_matches_reference_formula_on_constant_offset() {
     assert!((ssim(&a, &b).expect("ssim") - expect).abs() < 1e-6);
 }
 
-fn load_png(path: &str) -> Option<Plane> {
+pub(super) fn load_png(path: &str) -> Option<Plane> {
     let bytes = std::fs::read(path).ok()?;
     let g = crate::io::decode_gray8(&bytes, &crate::io::ImageLimits::default()).ok()?;
     Plane::from_gray(&g).ok()

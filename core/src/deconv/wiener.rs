@@ -44,7 +44,7 @@ pub fn estimate_noise_sigma(img: &Plane) -> f64 {
 
 /// Squared magnitude of the discrete gradient's frequency response, `|Dx|² + |Dy|²`
 /// (`2 − 2 cos ω` per axis), in the column-major half-spectrum layout of [`Fft2`].
-fn gradient_power(fft: &Fft2) -> Vec<f32> {
+pub(super) fn gradient_power(fft: &Fft2) -> Vec<f32> {
     let (h, w) = (fft.height, fft.width);
     let tau = std::f64::consts::TAU;
     let mut out = Vec::with_capacity(fft.spec_len());

@@ -1,0 +1,261 @@
+//! One entry point for the service: any method, any 8/16-bit grey/RGB(A) image.
+
+use image::DynamicImage;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::blind::{BlindParams, estimate_kernel};
+use super::blind_rl::blind_richardson_lucy;
+use super::color::{merge_image, split_image};
+use super::gyro::{GyroPsfParams, gyro_psf};
+use super::psf::MAX_PSF_SIZE;
+use super::rl::MAX_RL_ITERATIONS;
+use super::tv::{MAX_TV_ITERATIONS, TvParams, tv_deconv};
+use super::{Plane, Psf, richardson_lucy, wiener};
+use crate::error::{CoreError, CoreResult};
+use crate::progress::Progress;
+
+/// Deconvolution method of [`deblur_image`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub enum DeblurMethod {
+    /// Wiener filter with a gradient prior (needs `psf`; instant, the weakest).
+    Wiener,
+    /// Richardson-Lucy with unknown boundaries (needs `psf`).
+    RichardsonLucy,
+    /// Total-variation ADMM with unknown boundaries (needs `psf`; the best non-blind result).
+    #[default]
+    Tv,
+    /// Kernel estimated from the image (L0 gradient prior, coarse to fine), then TV.
+    Blind,
+    /// Alternating Richardson-Lucy (MATLAB `deconvblind`): for comparison only, it fails on
+    /// camera shake.
+    BlindRl,
+    /// Kernel drawn from a gyro trace over the exposure (needs `gyro`), then TV.
+    Gyro,
+}
+
+/// Parameters of [`deblur_image`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub struct DeblurParams {
+    /// Method (default `tv`).
+    pub method: DeblurMethod,
+    /// Known kernel: required by `wiener`, `richardson_lucy` and `tv`, refused by the others.
+    pub psf: Option<Psf>,
+    /// Iterations: RL (default 30), TV ADMM (default 80), alternating RL (default 50).
+    pub iterations: Option<usize>,
+    /// Wiener noise-to-signal ratio (default: estimated).
+    pub nsr: Option<f64>,
+    /// TV weight for `tv`, `blind` and `gyro` (default: from the estimated noise).
+    pub tv_lambda: Option<f64>,
+    /// Kernel side for `blind` / `blind_rl` (odd; default 31 or a third of the shorter side).
+    pub kernel_size: Option<usize>,
+    /// Gyro trace, exposure and intrinsics for `gyro`.
+    pub gyro: Option<GyroPsfParams>,
+}
+
+impl Default for DeblurParams {
+    fn default() -> Self {
+        Self {
+            method: DeblurMethod::Tv,
+            psf: None,
+            iterations: None,
+            nsr: None,
+            tv_lambda: None,
+            kernel_size: None,
+            gyro: None,
+        }
+    }
+}
+
+impl DeblurParams {
+    /// Check the parameters alone (the service does so before queueing); errors name the field.
+    pub fn validate(&self) -> CoreResult<()> {
+        use DeblurMethod::*;
+        let needs_psf = matches!(self.method, Wiener | RichardsonLucy | Tv);
+        match (&self.psf, needs_psf) {
+            (None, true) => {
+                return Err(CoreError::param(
+                    "psf",
+                    format!("method {:?} needs a kernel", self.method),
+                ));
+            }
+            (Some(_), false) => {
+                return Err(CoreError::param(
+                    "psf",
+                    "a kernel is only used by wiener, richardson_lucy and tv",
+                ));
+            }
+            (Some(p), true) => {
+                if p.width.is_multiple_of(2)
+                    || p.height.is_multiple_of(2)
+                    || p.width > MAX_PSF_SIZE
+                    || p.height > MAX_PSF_SIZE
+                {
+                    return Err(CoreError::param(
+                        "psf",
+                        format!("kernel sides must be odd and at most {MAX_PSF_SIZE}"),
+                    ));
+                }
+                Psf::from_weights(p.width, p.height, p.data.clone())
+                    .map_err(|e| CoreError::param("psf", e.to_string()))?;
+            }
+            (None, false) => {}
+        }
+        match (&self.gyro, self.method == Gyro) {
+            (None, true) => return Err(CoreError::param("gyro", "method gyro needs a trace")),
+            (Some(_), false) => {
+                return Err(CoreError::param("gyro", "only used by method gyro"));
+            }
+            (Some(g), true) => g.validate()?,
+            (None, false) => {}
+        }
+        if let Some(n) = self.iterations {
+            let max = if matches!(self.method, Tv | Blind | Gyro) {
+                MAX_TV_ITERATIONS
+            } else {
+                MAX_RL_ITERATIONS
+            };
+            if self.method == Wiener {
+                return Err(CoreError::param("iterations", "wiener is not iterative"));
+            }
+            if !(1..=max).contains(&n) {
+                return Err(CoreError::param(
+                    "iterations",
+                    format!("must be between 1 and {max}"),
+                ));
+            }
+        }
+        if let Some(v) = self.nsr
+            && !(v.is_finite() && v >= 0.0)
+        {
+            return Err(CoreError::param("nsr", "must be finite and ≥ 0"));
+        }
+        self.tv_params().validate().map_err(|e| match e {
+            CoreError::InvalidParam { message, .. } if self.tv_lambda.is_some() => {
+                CoreError::param("tv_lambda", message)
+            }
+            other => other,
+        })?;
+        self.blind_params().validate()?;
+        Ok(())
+    }
+
+    fn tv_params(&self) -> TvParams {
+        let d = TvParams::default();
+        TvParams {
+            lambda: self.tv_lambda,
+            iterations: match self.method {
+                DeblurMethod::Tv | DeblurMethod::Gyro => self.iterations.unwrap_or(d.iterations),
+                _ => d.iterations,
+            },
+        }
+    }
+
+    fn blind_params(&self) -> BlindParams {
+        BlindParams {
+            kernel_size: self.kernel_size,
+            final_tv: TvParams {
+                lambda: self.tv_lambda,
+                iterations: self.iterations.unwrap_or(TvParams::default().iterations),
+            },
+            ..BlindParams::default()
+        }
+    }
+}
+
+/// Result of [`deblur_image`].
+#[derive(Debug, Clone)]
+pub struct DeblurOutput {
+    /// The deblurred image, in the input's pixel format and bit depth.
+    pub image: DynamicImage,
+    /// The kernel used (given, estimated or drawn from the gyro trace).
+    pub psf: Psf,
+    /// The method that ran.
+    pub method: DeblurMethod,
+}
+
+/// Deblurs an 8/16-bit (or float) grey, grey+alpha, RGB or RGBA image; the result has the same
+/// pixel format and bit depth. Colour channels are deconvolved in parallel with the same kernel
+/// (the blur is optical, common to all channels); blind methods estimate it on the Rec. 601 luma,
+/// which has the best signal-to-noise ratio. Alpha is copied unchanged.
+pub fn deblur_image(
+    img: &DynamicImage,
+    params: &DeblurParams,
+    progress: &dyn Progress,
+) -> CoreResult<DeblurOutput> {
+    params.validate()?;
+    let split = split_image(img)?;
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let iterations = params.iterations;
+    let psf = match params.method {
+        DeblurMethod::Wiener | DeblurMethod::RichardsonLucy | DeblurMethod::Tv => params
+            .psf
+            .clone()
+            .ok_or_else(|| CoreError::param("psf", "missing"))?,
+        DeblurMethod::Blind => estimate_kernel(&split.luma(), &params.blind_params(), progress)?,
+        DeblurMethod::BlindRl => {
+            let ks = params.blind_params().kernel_size_for(w, h)?;
+            blind_richardson_lucy(&split.luma(), ks, iterations.unwrap_or(50), progress)?.1
+        }
+        DeblurMethod::Gyro => gyro_psf(
+            params
+                .gyro
+                .as_ref()
+                .ok_or_else(|| CoreError::param("gyro", "missing"))?,
+        )?,
+    };
+    if psf.width > w || psf.height > h {
+        return Err(CoreError::param(
+            "psf",
+            format!(
+                "{}×{} kernel is larger than the {w}×{h} image",
+                psf.width, psf.height
+            ),
+        ));
+    }
+    let tv = match params.method {
+        DeblurMethod::Blind => params.blind_params().final_tv,
+        _ => params.tv_params(),
+    };
+    let run = |p: &Plane| -> CoreResult<Plane> {
+        match params.method {
+            DeblurMethod::Wiener => wiener(p, &psf, params.nsr),
+            DeblurMethod::RichardsonLucy | DeblurMethod::BlindRl => richardson_lucy(
+                p,
+                &psf,
+                iterations.unwrap_or(30).min(MAX_RL_ITERATIONS),
+                progress,
+            ),
+            DeblurMethod::Tv | DeblurMethod::Blind | DeblurMethod::Gyro => {
+                tv_deconv(p, &psf, &tv, progress)
+            }
+        }
+    };
+    let planes = split
+        .color
+        .par_iter()
+        .map(run)
+        .collect::<CoreResult<Vec<Plane>>>()?;
+    Ok(DeblurOutput {
+        image: merge_image(&split, &planes)?,
+        psf,
+        method: params.method,
+    })
+}
+
+/// The kernel as an 8-bit grey PNG scaled so that its largest weight is 255 (for previews; the
+/// JSON of [`Psf::to_json`] is the lossless form).
+pub fn psf_png(psf: &Psf) -> CoreResult<Vec<u8>> {
+    let g = psf.to_gray();
+    let buf = image::GrayImage::from_raw(g.width, g.height, g.data)
+        .ok_or_else(|| CoreError::input("kernel buffer size mismatch"))?;
+    let mut out = std::io::Cursor::new(Vec::new());
+    DynamicImage::ImageLuma8(buf)
+        .write_to(&mut out, image::ImageFormat::Png)
+        .map_err(|e| CoreError::input(format!("PNG encoding failed: {e}")))?;
+    Ok(out.into_inner())
+}
