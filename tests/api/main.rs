@@ -6,6 +6,7 @@
 mod camera;
 mod common;
 mod datasets;
+mod deblur;
 mod documents;
 mod errors;
 mod imu;

@@ -47,7 +47,8 @@ use crate::state::AppState;
         crate::jobs::photometric::ResponseJobParams,
         crate::jobs::photometric::VignettingJobParams,
         crate::jobs::photometric::OnlineJobParams,
-        crate::jobs::photometric::CorrectJobParams
+        crate::jobs::photometric::CorrectJobParams,
+        caliper_core::deconv::DeblurParams
     )),
     modifiers(&ProblemCodes)
 )]

@@ -6,6 +6,7 @@
 
 pub mod blur_score;
 pub mod camera_calibration;
+pub mod deblur;
 pub mod document;
 pub mod imu;
 pub mod photometric;
@@ -117,7 +118,7 @@ pub trait JobKind: Send + Sync + 'static {
 
 /// Every job kind this build knows.
 pub fn kinds() -> &'static [&'static dyn JobKind] {
-    static KINDS: [&dyn JobKind; 9] = [
+    static KINDS: [&dyn JobKind; 10] = [
         &blur_score::BlurScore,
         &camera_calibration::CameraCalibration,
         &imu::ImuNoise,
@@ -127,6 +128,7 @@ pub fn kinds() -> &'static [&'static dyn JobKind] {
         &photometric::Vignetting,
         &photometric::PhotometricOnline,
         &photometric::PhotometricCorrect,
+        &deblur::Deblur,
     ];
     &KINDS
 }

@@ -1,0 +1,278 @@
+//! `deblur` end to end: a 16-bit RGB image blurred by a known motion kernel comes back sharper,
+//! in the same pixel format; bad parameters are refused before queueing; the offline command
+//! writes the deblurred file under the input's name.
+
+use std::io::Cursor;
+
+use caliper_core::deconv::Psf;
+use image::{DynamicImage, ImageBuffer, ImageFormat, Rgb};
+use serde_json::{Value, json};
+
+use crate::common::*;
+
+/// A sharp colour scene: checkerboard plus deterministic texture, one pattern per channel.
+fn sharp_rgb(w: u32, h: u32) -> Vec<[f64; 3]> {
+    let grey = sharp_image(w, h);
+    (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let v = f64::from(grey.get_pixel(x, y)[0]) / 255.0;
+            [v, 0.3 + 0.5 * v, 1.0 - 0.8 * v]
+        })
+        .collect()
+}
+
+/// Convolve with `psf`, clamping at the borders (the service's boundary model must cope).
+fn blur(img: &[[f64; 3]], w: usize, h: usize, psf: &Psf) -> Vec<[f64; 3]> {
+    let (rx, ry) = (psf.width / 2, psf.height / 2);
+    let mut out = vec![[0.0; 3]; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut acc = [0.0; 3];
+            for ky in 0..psf.height {
+                for kx in 0..psf.width {
+                    let k = psf.at(kx, ky);
+                    if k == 0.0 {
+                        continue;
+                    }
+                    let sx = (x + rx).saturating_sub(kx).min(w - 1);
+                    let sy = (y + ry).saturating_sub(ky).min(h - 1);
+                    for c in 0..3 {
+                        acc[c] += k * img[sy * w + sx][c];
+                    }
+                }
+            }
+            out[y * w + x] = acc;
+        }
+    }
+    out
+}
+
+fn to_png16(img: &[[f64; 3]], w: u32, h: u32) -> Vec<u8> {
+    let buf: ImageBuffer<Rgb<u16>, Vec<u16>> = ImageBuffer::from_fn(w, h, |x, y| {
+        let p = img[(y * w + x) as usize];
+        Rgb(p.map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16))
+    });
+    let mut out = Cursor::new(Vec::new());
+    DynamicImage::ImageRgb16(buf)
+        .write_to(&mut out, ImageFormat::Png)
+        .expect("png");
+    out.into_inner()
+}
+
+/// PSNR over the interior (the outer `margin` pixels depend on the unknown boundary).
+fn psnr(a: &[[f64; 3]], b: &[[f64; 3]], w: usize, h: usize, margin: usize) -> f64 {
+    let mut se = 0.0;
+    let mut n = 0usize;
+    for y in margin..h - margin {
+        for x in margin..w - margin {
+            for c in 0..3 {
+                let d = a[y * w + x][c] - b[y * w + x][c];
+                se += d * d;
+                n += 1;
+            }
+        }
+    }
+    10.0 * (n as f64 / se).log10()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn deblur_sharpens_a_16_bit_rgb_image_and_keeps_its_format() {
+    let (w, h) = (160u32, 120u32);
+    let sharp = sharp_rgb(w, h);
+    let psf = Psf::motion(11.0, 30.0).expect("psf");
+    let blurred = blur(&sharp, w as usize, h as usize, &psf);
+    let s = start().await;
+    let ds = s.dataset(vec![("shot.png", to_png16(&blurred, w, h))]).await;
+    let id = s
+        .job(json!({"kind": "deblur", "dataset": ds, "params": {"method": "tv", "psf": psf}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    assert_eq!(doc["schema"], "caliper.deblur/v1");
+    assert_eq!(doc["parameters"]["images"][0]["artifact"], "shot.png");
+
+    let bytes = reqwest::get(s.url(&format!("/v1/jobs/{id}/artifacts/shot.png")))
+        .await
+        .expect("artifact")
+        .bytes()
+        .await
+        .expect("body");
+    let out = image::load_from_memory(&bytes).expect("decodes");
+    let DynamicImage::ImageRgb16(out) = out else {
+        panic!("expected 16-bit RGB back, got {:?}", out.color());
+    };
+    let restored: Vec<[f64; 3]> = out
+        .pixels()
+        .map(|p| p.0.map(|v| f64::from(v) / 65535.0))
+        .collect();
+    let before = psnr(&blurred, &sharp, w as usize, h as usize, 8);
+    let after = psnr(&restored, &sharp, w as usize, h as usize, 8);
+    assert!(
+        after > before + 5.0,
+        "deblurring must gain > 5 dB: {before:.2} → {after:.2} dB"
+    );
+
+    // The kernel used comes back exactly (JSON) and as a picture.
+    let kj: Value = reqwest::get(s.url(&format!("/v1/jobs/{id}/artifacts/shot.kernel.json")))
+        .await
+        .expect("kernel")
+        .json()
+        .await
+        .expect("json");
+    assert_eq!(kj["width"], psf.width);
+    let resp = reqwest::get(s.url(&format!("/v1/jobs/{id}/artifacts/shot.preview.png")))
+        .await
+        .expect("preview");
+    assert_eq!(resp.status(), 200);
+    s.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn deblur_refuses_inconsistent_params_before_queueing() {
+    let s = start().await;
+    let ds = s.dataset(vec![("a.png", png(&sharp_image(64, 48)))]).await;
+    // A non-blind method without a kernel.
+    let (status, p) = s
+        .post_json(
+            "/v1/jobs",
+            &json!({"kind": "deblur", "dataset": ds, "params": {"method": "wiener"}}),
+        )
+        .await;
+    assert_eq!(status, 422, "{p}");
+    assert_eq!(p["field"], "params.psf", "{p}");
+    // A kernel that is not normalisable.
+    let (status, p) = s
+        .post_json(
+            "/v1/jobs",
+            &json!({"kind": "deblur", "dataset": ds,
+                    "params": {"method": "tv", "psf": {"width": 3, "height": 3, "data": [0,0,0,0,-1,0,0,0,0]}}}),
+        )
+        .await;
+    assert_eq!(status, 422, "{p}");
+    assert_eq!(p["field"], "params.psf", "{p}");
+    // Unknown method.
+    let (status, p) = s
+        .post_json(
+            "/v1/jobs",
+            &json!({"kind": "deblur", "dataset": ds, "params": {"method": "magic"}}),
+        )
+        .await;
+    assert_eq!(status, 422, "{p}");
+    s.stop().await;
+}
+
+#[test]
+fn offline_deblur_writes_the_image_under_its_name_and_the_kernel() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let img = box_blur(&sharp_image(96, 72), 5);
+    let input = dir.path().join("blurred.png");
+    std::fs::write(&input, png(&img)).expect("write");
+    // A 5×5 box kernel as numpy.savetxt writes it.
+    let kernel = dir.path().join("kernel.txt");
+    let row = vec!["4.000000000000000083e-02"; 5].join(" ");
+    std::fs::write(&kernel, format!("{row}\n").repeat(5)).expect("write");
+    let out = dir.path().join("out");
+    let o = std::process::Command::new(caliper_bin())
+        .args(["run", "deblur", "--method", "wiener", "--psf"])
+        .arg(&kernel)
+        .arg("--out")
+        .arg(&out)
+        .arg(&input)
+        .output()
+        .expect("run caliper");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let doc: Value = serde_json::from_slice(&o.stdout).expect("document");
+    assert_eq!(doc["schema"], "caliper.deblur/v1");
+    let back = image::open(out.join("blurred.png")).expect("deblurred image");
+    assert_eq!(back.color(), image::ColorType::L8);
+    assert_eq!((back.width(), back.height()), (96, 72));
+    assert!(out.join("blurred.kernel.png").exists());
+    assert!(out.join("blurred.kernel.json").exists());
+    // A kernel file that is not a kernel: clear error, non-zero exit.
+    std::fs::write(&kernel, "1 2\n3\n").expect("write");
+    let o = std::process::Command::new(caliper_bin())
+        .args(["run", "deblur", "--method", "wiener", "--psf"])
+        .arg(&kernel)
+        .arg(&input)
+        .output()
+        .expect("run caliper");
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("kernel.txt"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// Grey version of the colour helpers above (the blind estimate runs on luma anyway).
+fn grey_png(img: &[[f64; 3]], w: u32, h: u32) -> Vec<u8> {
+    let buf: ImageBuffer<image::Luma<u8>, Vec<u8>> = ImageBuffer::from_fn(w, h, |x, y| {
+        image::Luma([(img[(y * w + x) as usize][0].clamp(0.0, 1.0) * 255.0).round() as u8])
+    });
+    png(&buf)
+}
+
+/// The kernel a job used, from its JSON artifact (`{width, height, kernel: rows}`).
+async fn kernel_of(s: &TestServer, job: &str, stem: &str) -> Psf {
+    let text = reqwest::get(s.url(&format!("/v1/jobs/{job}/artifacts/{stem}.kernel.json")))
+        .await
+        .expect("kernel")
+        .text()
+        .await
+        .expect("text");
+    Psf::parse_json(&text).expect("a valid kernel")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn blind_and_gyro_deblur_return_their_kernels() {
+    let (w, h) = (128u32, 128u32);
+    let sharp = sharp_rgb(w, h);
+    let psf = Psf::motion(9.0, 0.0).expect("psf");
+    let blurred = blur(&sharp, w as usize, h as usize, &psf);
+    let s = start().await;
+    let ds = s.dataset(vec![("b.png", grey_png(&blurred, w, h))]).await;
+
+    // Blind: the estimated kernel is a horizontal streak about as long as the true one.
+    let id = s
+        .job(json!({"kind": "deblur", "dataset": ds, "params": {"method": "blind", "kernel_size": 15}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let k = kernel_of(&s, &id, "b").await;
+    let (mut sx, mut sy) = (0.0, 0.0);
+    let (cx, cy) = ((k.width / 2) as f64, (k.height / 2) as f64);
+    for y in 0..k.height {
+        for x in 0..k.width {
+            sx += k.at(x, y) * (x as f64 - cx).powi(2);
+            sy += k.at(x, y) * (y as f64 - cy).powi(2);
+        }
+    }
+    // A 9 px box along x has variance (9² − 1) / 12 ≈ 6.7 px².
+    assert!(sx > 3.0 && sx > 3.0 * sy, "kernel spread x {sx:.2}, y {sy:.2}");
+
+    // Gyro: 0.5 rad/s about the camera's y axis for 20 ms at fx = 500 px is a 5 px streak.
+    let samples: Vec<Value> = (0..=30)
+        .map(|i| json!({"t": i as f64 * 0.001, "w": [0.0, 0.5, 0.0]}))
+        .collect();
+    let gyro = json!({"samples": samples, "exposure_start_s": 0.005, "exposure_s": 0.02,
+                      "fx": 500.0, "fy": 500.0, "cx": 64.0, "cy": 64.0});
+    let id = s
+        .job(json!({"kind": "deblur", "dataset": ds, "params": {"method": "gyro", "gyro": gyro}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let k = kernel_of(&s, &id, "b").await;
+    let cols: Vec<usize> = (0..k.width)
+        .filter(|&x| (0..k.height).any(|y| k.at(x, y) > 1e-3))
+        .collect();
+    let rows: Vec<usize> = (0..k.height)
+        .filter(|&y| (0..k.width).any(|x| k.at(x, y) > 1e-3))
+        .collect();
+    let extent_x = cols.last().unwrap_or(&0) - cols.first().unwrap_or(&0);
+    let extent_y = rows.last().unwrap_or(&0) - rows.first().unwrap_or(&0);
+    assert!((4..=7).contains(&extent_x), "gyro streak {extent_x} px wide, kernel {k:?}");
+    assert!(extent_y <= 1, "gyro streak {extent_y} px tall");
+    s.stop().await;
+}
