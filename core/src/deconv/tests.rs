@@ -379,7 +379,7 @@ fn ssim_matches_reference_formula_on_constant_offset() {
     assert!((ssim(&a, &b).expect("ssim") - expect).abs() < 1e-6);
 }
 
-pub(super) fn load_png(path: &str) -> Option<Plane> {
+fn load_png(path: &str) -> Option<Plane> {
     let bytes = std::fs::read(path).ok()?;
     let g = crate::io::decode_gray8(&bytes, &crate::io::ImageLimits::default()).ok()?;
     Plane::from_gray(&g).ok()

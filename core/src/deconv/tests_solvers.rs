@@ -48,11 +48,66 @@ fn tv_params_validate() {
     assert_eq!(p.iterations, TvParams::default().iterations);
 }
 
+/// Procedural "natural" image: overlapping random discs and rotated rectangles of random grey
+/// levels on a shaded background, so that edges run in every direction at many scales.
+fn shapes(w: usize, h: usize, seed: u64) -> Plane {
+    let mut s = seed | 1;
+    let mut rnd = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f32 / (1u64 << 53) as f32
+    };
+    let mut data: Vec<f32> = (0..w * h)
+        .map(|i| 0.3 + 0.3 * (i % w) as f32 / w as f32 + 0.1 * (i / w) as f32 / h as f32)
+        .collect();
+    for _ in 0..60 {
+        let (cx, cy) = (rnd() * w as f32, rnd() * h as f32);
+        let size = 4.0 + rnd() * 0.15 * w as f32;
+        let v = rnd();
+        let ang = rnd() * std::f32::consts::PI;
+        let (sn, cs) = ang.sin_cos();
+        let disc = rnd() < 0.5;
+        let aspect = 0.3 + rnd();
+        for y in 0..h {
+            for x in 0..w {
+                let (dx, dy) = (x as f32 - cx, y as f32 - cy);
+                let inside = if disc {
+                    dx * dx + dy * dy < size * size
+                } else {
+                    let (u, t) = (cs * dx + sn * dy, -sn * dx + cs * dy);
+                    u.abs() < size && t.abs() < size * aspect
+                };
+                if inside {
+                    data[y * w + x] = v;
+                }
+            }
+        }
+    }
+    // Fine texture, as in photos: TV with the true kernel is then not trivially exact.
+    let waves: Vec<(f32, f32, f32)> = (0..6)
+        .map(|_| {
+            let a = rnd() * std::f32::consts::PI;
+            let f = std::f32::consts::TAU / (4.0 + 12.0 * rnd());
+            (f * a.cos(), f * a.sin(), rnd() * 6.0)
+        })
+        .collect();
+    for (i, v) in data.iter_mut().enumerate() {
+        let (x, y) = ((i % w) as f32, (i / w) as f32);
+        let t: f32 = waves
+            .iter()
+            .map(|(fx, fy, p)| (fx * x + fy * y + p).sin())
+            .sum();
+        *v = (*v + 0.02 * t).clamp(0.0, 1.0);
+    }
+    Plane::new(w, h, data).expect("plane")
+}
+
 #[test]
 fn blind_recovers_motion_kernel() {
-    let sharp = scene(192, 192);
+    let sharp = shapes(192, 192, 9);
     let truth = Psf::motion(13.0, 40.0).expect("motion");
-    let blurred = add_noise(&blur_reflect(&sharp, &truth), 0.005, 11);
+    let blurred = add_noise(&blur_reflect(&sharp, &truth), 0.01, 11);
     let params = BlindParams {
         kernel_size: Some(21),
         ..BlindParams::default()
@@ -63,7 +118,7 @@ fn blind_recovers_motion_kernel() {
     assert_eq!((out.psf.width, out.psf.height), (21, 21));
     assert!((out.psf.data.iter().sum::<f64>() - 1.0).abs() < 1e-9);
     let with_truth = tv_deconv(&blurred, &truth, &params.final_tv, &NoProgress).expect("tv");
-    let ratio = error_ratio_aligned(&sharp, &out.image, &with_truth, 12, 4).expect("ratio");
+    let ratio = error_ratio_aligned(&sharp, &out.image, &with_truth, 16, 6).expect("ratio");
     eprintln!("blind error ratio {ratio:.2}");
     assert!(ratio <= 3.0, "error ratio {ratio:.2}");
 }
@@ -374,58 +429,4 @@ fn tv_cancels() {
         ),
         Err(CoreError::Canceled)
     ));
-}
-
-#[test]
-#[ignore = "debug print"]
-fn blind_debug() {
-    let sharp = scene(192, 192);
-    let truth = Psf::motion(13.0, 40.0).expect("motion");
-    let blurred = add_noise(&blur_reflect(&sharp, &truth), 0.005, 11);
-    let lams: Vec<f64> = std::env::var("LAMS").unwrap_or("0.004,0.002,0.001,0.0005".into()).split(',').map(|v| v.parse().expect("f")).collect();
-    let regs: Vec<f64> = std::env::var("REGS").unwrap_or("2".into()).split(',').map(|v| v.parse().expect("f")).collect();
-    for (lam, reg) in lams.iter().flat_map(|l| regs.iter().map(move |r| (*l, *r))) {
-        let params = BlindParams {
-            kernel_size: Some(21),
-            lambda_grad: lam,
-            kernel_reg: reg,
-            ..BlindParams::default()
-        };
-        let out = blind_deconv(&blurred, &params, &NoProgress).expect("k");
-        let with_truth = tv_deconv(&blurred, &truth, &params.final_tv, &NoProgress).expect("tv");
-        let ratio = error_ratio_aligned(&sharp, &out.image, &with_truth, 12, 4).expect("ratio");
-        eprintln!("lambda {lam} reg {reg}: ratio {ratio:.2}");
-    }
-}
-
-#[test]
-#[ignore = "debug print, needs /work/shared"]
-fn blind_debug_camera() {
-    let Some(full) = super::tests::load_png("/work/shared/data/blur/skimage/camera.png") else {
-        return;
-    };
-    // 2× box downsample then centre 255 crop.
-    let (w, h) = (full.width / 2, full.height / 2);
-    let half: Vec<f32> = (0..w * h)
-        .map(|i| {
-            let (x, y) = (2 * (i % w), 2 * (i / w));
-            (full.at(x, y) + full.at(x + 1, y) + full.at(x, y + 1) + full.at(x + 1, y + 1)) / 4.0
-        })
-        .collect();
-    let (x0, y0) = ((w - 255) / 2, (h - 255) / 2);
-    let sharp = Plane::new(
-        255,
-        255,
-        (0..255 * 255).map(|i| half[(y0 + i / 255) * w + x0 + i % 255]).collect(),
-    )
-    .expect("plane");
-    let ang: f64 = std::env::var("ANG").map_or(135.0, |v| v.parse().expect("f"));
-    let len: f64 = std::env::var("LEN").map_or(21.0, |v| v.parse().expect("f"));
-    let truth = Psf::motion(len, ang).expect("motion");
-    let blurred = add_noise(&blur_reflect(&sharp, &truth), 0.01, 11);
-    let params = BlindParams::default();
-    let out = blind_deconv(&blurred, &params, &NoProgress).expect("k");
-    let with_truth = tv_deconv(&blurred, &truth, &params.final_tv, &NoProgress).expect("tv");
-    let ratio = error_ratio_aligned(&sharp, &out.image, &with_truth, 20, 6).expect("ratio");
-    eprintln!("ratio {ratio:.2}");
 }
