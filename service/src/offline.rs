@@ -410,7 +410,11 @@ fn run_deblur(a: &DeblurArgs) -> Result<String, RunError> {
             let text = String::from_utf8(bytes)
                 .map_err(|_| RunError::Input(format!("{} is not text", path.display())))?;
             if text.trim_start().starts_with('{') {
-                Psf::parse_json(&text).map_err(bad)?
+                // `{width, height, data}` (the API's form) or `{kernel: [[…]]}`.
+                match serde_json::from_str::<Psf>(&text) {
+                    Ok(k) => Psf::from_weights(k.width, k.height, k.data).map_err(bad)?,
+                    Err(_) => Psf::parse_json(&text).map_err(bad)?,
+                }
             } else {
                 Psf::parse_text(&text).map_err(bad)?
             }

@@ -137,8 +137,16 @@ impl JobKind for Deblur {
             .unwrap_or(Value::Null)
     }
     fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
-        let p: DeblurParams = parse_params(params)?;
+        let mut p: DeblurParams = parse_params(params)?;
         p.validate().map_err(param_error)?;
+        // Store the kernel normalised (sum 1), so the job and its document use the same one.
+        if let Some(k) = p.psf.take() {
+            p.psf = Some(
+                caliper_core::deconv::Psf::from_weights(k.width, k.height, k.data).map_err(
+                    |e| param_error(caliper_core::CoreError::param("psf", e.to_string())),
+                )?,
+            );
+        }
         serde_json::to_value(&p).map_err(ApiError::internal)
     }
     fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
