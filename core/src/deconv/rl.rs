@@ -2,7 +2,8 @@
 
 use rayon::prelude::*;
 
-use super::fft::{C32, Fft2};
+use super::fft::Fft2;
+use super::ops::{SparseKernel, convolve};
 use super::{PadLayout, Plane, Psf, check_inputs};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
@@ -59,17 +60,19 @@ pub fn richardson_lucy(
     }
     let layout = PadLayout::new(img.height, img.width, psf.height / 2, psf.width / 2);
     let fft = Fft2::new(layout.padded_height, layout.padded_width);
-    let kspec = fft.kernel_spectrum(psf.width, psf.height, |x, y| psf.at(x, y));
-    let scale = 1.0 / (fft.height * fft.width) as f32;
-    let conv = |plane: &[f32], adjoint: bool| -> Vec<f32> {
-        let mut spec = fft.forward(plane);
-        spec.par_iter_mut()
-            .zip(kspec.par_iter())
-            .for_each(|(s, k)| {
-                let k: C32 = if adjoint { k.conj() } else { *k };
-                *s = *s * k * scale;
-            });
-        fft.inverse(&spec)
+    let n = fft.height * fft.width;
+    let sparse = SparseKernel::new(psf.width, psf.height, |x, y| psf.at(x, y));
+    // Thin (motion) kernels are convolved directly; others through the FFT, whose kernel
+    // spectrum is then computed once.
+    let kspec = if sparse.worth_it(n) {
+        None
+    } else {
+        Some(fft.kernel_spectrum(psf.width, psf.height, |x, y| psf.at(x, y)))
+    };
+    let width = fft.width;
+    let conv = |plane: &[f32], adjoint: bool, out: &mut Vec<f32>| match &kspec {
+        None => sparse.convolve_into(plane, width, adjoint, out),
+        Some(k) => *out = convolve(&fft, plane, k, adjoint),
     };
 
     let mask = layout.mask();
@@ -79,7 +82,8 @@ pub fn richardson_lucy(
         .zip(&mask)
         .map(|(v, m)| v.max(0.0) * m)
         .collect();
-    let weight = conv(&mask, true);
+    let mut weight = vec![0.0f32; n];
+    conv(&mask, true, &mut weight);
     let support: Vec<bool> = weight.iter().map(|&w| w > MIN_WEIGHT).collect();
     // Start from the mirrored image on the object domain, strictly positive so that no pixel is
     // frozen at zero by the multiplicative update.
@@ -90,15 +94,18 @@ pub fn richardson_lucy(
         .map(|(&v, &s)| if s { v.max(1e-3) } else { 0.0 })
         .collect();
 
+    let mut blurred = vec![0.0f32; n];
+    let mut ratio = vec![0.0f32; n];
+    let mut back = vec![0.0f32; n];
     for it in 0..iterations {
         progress.check()?;
-        let blurred = conv(&x, false);
-        let ratio: Vec<f32> = data
-            .par_iter()
+        conv(&x, false, &mut blurred);
+        ratio
+            .par_iter_mut()
+            .zip(data.par_iter())
             .zip(blurred.par_iter().zip(mask.par_iter()))
-            .map(|(&y, (&b, &m))| if m > 0.0 { y / b.max(1e-6) } else { 0.0 })
-            .collect();
-        let back = conv(&ratio, true);
+            .for_each(|((r, &y), (&b, &m))| *r = if m > 0.0 { y / b.max(1e-6) } else { 0.0 });
+        conv(&ratio, true, &mut back);
         let curv = tv_curvature(&x, &support, layout.padded_width);
         x.par_iter_mut()
             .zip(
