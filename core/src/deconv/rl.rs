@@ -97,16 +97,29 @@ pub fn richardson_lucy(
     let mut blurred = vec![0.0f32; n];
     let mut ratio = vec![0.0f32; n];
     let mut back = vec![0.0f32; n];
+    let mut curv = vec![0.0f32; n];
+    let tr = std::env::var("CALIPER_TRACE").is_ok();
+    let t0 = std::time::Instant::now();
+    let lap = |m: &str| {
+        if tr {
+            eprintln!("TRACE {m} {:?} direct={}", t0.elapsed(), kspec.is_none())
+        }
+    };
     for it in 0..iterations {
         progress.check()?;
+        lap("it");
         conv(&x, false, &mut blurred);
+        lap("conv");
         ratio
             .par_iter_mut()
             .zip(data.par_iter())
             .zip(blurred.par_iter().zip(mask.par_iter()))
             .for_each(|((r, &y), (&b, &m))| *r = if m > 0.0 { y / b.max(1e-6) } else { 0.0 });
+        lap("ratio");
         conv(&ratio, true, &mut back);
-        let curv = tv_curvature(&x, &support, layout.padded_width);
+        lap("conv");
+        tv_curvature(&x, &support, layout.padded_width, &mut curv);
+        lap("curv");
         x.par_iter_mut()
             .zip(
                 back.par_iter()
@@ -133,42 +146,74 @@ pub fn richardson_lucy(
 
 /// `div(∇x / |∇x|)` (forward differences for the gradient, backward for the divergence), with
 /// differences across the edge of the object domain treated as zero so that the domain's own
-/// border does not act as an edge.
-fn tv_curvature(x: &[f32], support: &[bool], width: usize) -> Vec<f32> {
+/// border does not act as an edge. Written into `out`.
+///
+/// Works row by row (rows in parallel): the unit gradients of the row and of the one above are
+/// recomputed per row into small buffers rather than stored for the whole image, which keeps the
+/// pass in cache and allocation-free.
+fn tv_curvature(x: &[f32], support: &[bool], width: usize, out: &mut [f32]) {
+    let height = x.len() / width;
+    out.par_chunks_mut(width).enumerate().for_each_init(
+        || [(); 4].map(|_| vec![0.0f32; width]),
+        |[ux, uy, ux_up, uy_up], (r, o)| {
+            unit_gradients(x, support, width, height, r, ux, uy);
+            if r > 0 {
+                // Only the vertical component of the row above is used.
+                unit_gradients(x, support, width, height, r - 1, ux_up, uy_up);
+            } else {
+                uy_up.fill(0.0);
+            }
+            let s = &support[r * width..(r + 1) * width];
+            for c in 0..width {
+                o[c] = if s[c] {
+                    let left = if c > 0 { ux[c - 1] } else { 0.0 };
+                    (ux[c] - left) + (uy[c] - uy_up[c])
+                } else {
+                    0.0
+                };
+            }
+        },
+    );
+}
+
+/// Unit gradient `∇x / |∇x|` (ε-smoothed) of row `r` into `ux`, `uy`; zero off the support and
+/// for differences that leave it or the domain.
+fn unit_gradients(
+    x: &[f32],
+    support: &[bool],
+    width: usize,
+    height: usize,
+    r: usize,
+    ux: &mut [f32],
+    uy: &mut [f32],
+) {
     const EPS: f32 = 1e-3;
-    let n = x.len();
-    let grad = |i: usize| -> (f32, f32) {
-        if !support[i] {
-            return (0.0, 0.0);
+    let base = r * width;
+    let row = &x[base..base + width];
+    let srow = &support[base..base + width];
+    let below = (r + 1 < height).then(|| {
+        (
+            &x[base + width..base + 2 * width],
+            &support[base + width..base + 2 * width],
+        )
+    });
+    for c in 0..width {
+        if !srow[c] {
+            ux[c] = 0.0;
+            uy[c] = 0.0;
+            continue;
         }
-        let gx = if !(i + 1).is_multiple_of(width) && support[i + 1] {
-            x[i + 1] - x[i]
+        let gx = if c + 1 < width && srow[c + 1] {
+            row[c + 1] - row[c]
         } else {
             0.0
         };
-        let gy = if i + width < n && support[i + width] {
-            x[i + width] - x[i]
-        } else {
-            0.0
+        let gy = match below {
+            Some((xb, sb)) if sb[c] => xb[c] - row[c],
+            _ => 0.0,
         };
         let m = (gx * gx + gy * gy + EPS * EPS).sqrt();
-        (gx / m, gy / m)
-    };
-    let units: Vec<(f32, f32)> = (0..n).into_par_iter().map(grad).collect();
-    (0..n)
-        .into_par_iter()
-        .map(|i| {
-            if !support[i] {
-                return 0.0;
-            }
-            let (ux, uy) = units[i];
-            let left = if !i.is_multiple_of(width) {
-                units[i - 1].0
-            } else {
-                0.0
-            };
-            let up = if i >= width { units[i - width].1 } else { 0.0 };
-            (ux - left) + (uy - up)
-        })
-        .collect()
+        ux[c] = gx / m;
+        uy[c] = gy / m;
+    }
 }
