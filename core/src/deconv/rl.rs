@@ -98,28 +98,16 @@ pub fn richardson_lucy(
     let mut ratio = vec![0.0f32; n];
     let mut back = vec![0.0f32; n];
     let mut curv = vec![0.0f32; n];
-    let tr = std::env::var("CALIPER_TRACE").is_ok();
-    let t0 = std::time::Instant::now();
-    let lap = |m: &str| {
-        if tr {
-            eprintln!("TRACE {m} {:?} direct={}", t0.elapsed(), kspec.is_none())
-        }
-    };
     for it in 0..iterations {
         progress.check()?;
-        lap("it");
         conv(&x, false, &mut blurred);
-        lap("conv");
         ratio
             .par_iter_mut()
             .zip(data.par_iter())
             .zip(blurred.par_iter().zip(mask.par_iter()))
             .for_each(|((r, &y), (&b, &m))| *r = if m > 0.0 { y / b.max(1e-6) } else { 0.0 });
-        lap("ratio");
         conv(&ratio, true, &mut back);
-        lap("conv");
         tv_curvature(&x, &support, layout.padded_width, &mut curv);
-        lap("curv");
         x.par_iter_mut()
             .zip(
                 back.par_iter()
@@ -148,33 +136,46 @@ pub fn richardson_lucy(
 /// differences across the edge of the object domain treated as zero so that the domain's own
 /// border does not act as an edge. Written into `out`.
 ///
-/// Works row by row (rows in parallel): the unit gradients of the row and of the one above are
-/// recomputed per row into small buffers rather than stored for the whole image, which keeps the
-/// pass in cache and allocation-free.
+/// Works on blocks of rows in parallel, carrying the unit gradients of the row above in small
+/// buffers rather than storing them for the whole image, which keeps the pass in cache and
+/// allocation-free.
 fn tv_curvature(x: &[f32], support: &[bool], width: usize, out: &mut [f32]) {
     let height = x.len() / width;
-    out.par_chunks_mut(width).enumerate().for_each_init(
-        || [(); 4].map(|_| vec![0.0f32; width]),
-        |[ux, uy, ux_up, uy_up], (r, o)| {
-            unit_gradients(x, support, width, height, r, ux, uy);
-            if r > 0 {
-                // Only the vertical component of the row above is used.
-                unit_gradients(x, support, width, height, r - 1, ux_up, uy_up);
-            } else {
-                uy_up.fill(0.0);
-            }
-            let s = &support[r * width..(r + 1) * width];
-            for c in 0..width {
-                o[c] = if s[c] {
-                    let left = if c > 0 { ux[c - 1] } else { 0.0 };
-                    (ux[c] - left) + (uy[c] - uy_up[c])
+    out.par_chunks_mut(width * CURV_ROWS)
+        .enumerate()
+        .for_each_init(
+            || [(); 4].map(|_| vec![0.0f32; width]),
+            |[ux, uy, ux_up, uy_up], (b, block)| {
+                let r0 = b * CURV_ROWS;
+                if r0 > 0 {
+                    // Only the vertical component of the row above is used.
+                    unit_gradients(x, support, width, height, r0 - 1, ux_up, uy_up);
                 } else {
-                    0.0
-                };
-            }
-        },
-    );
+                    uy_up.fill(0.0);
+                }
+                for (dr, o) in block.chunks_mut(width).enumerate() {
+                    let r = r0 + dr;
+                    unit_gradients(x, support, width, height, r, ux, uy);
+                    let s = &support[r * width..(r + 1) * width];
+                    for c in 0..width {
+                        o[c] = if s[c] {
+                            let left = if c > 0 { ux[c - 1] } else { 0.0 };
+                            (ux[c] - left) + (uy[c] - uy_up[c])
+                        } else {
+                            0.0
+                        };
+                    }
+                    // This row is the next one's row above.
+                    std::mem::swap(ux, ux_up);
+                    std::mem::swap(uy, uy_up);
+                }
+            },
+        );
 }
+
+/// Rows per task of [`tv_curvature`]: each task recomputes the unit gradients of the row above
+/// its first row, so blocks amortise that over several rows.
+const CURV_ROWS: usize = 16;
 
 /// Unit gradient `∇x / |∇x|` (ε-smoothed) of row `r` into `ux`, `uy`; zero off the support and
 /// for differences that leave it or the domain.

@@ -167,43 +167,46 @@ pub(super) fn admm_tv(
     let mut u = vec![0.0f32; n];
     let mut wx = vec![0.0f32; n];
     let mut wy = vec![0.0f32; n];
+    let mut ua = vec![0.0f32; n];
+    let mut dx = vec![0.0f32; n];
+    let mut dy = vec![0.0f32; n];
+    // Kᵀ(u − a) when convolving directly.
+    let mut kt = if direct.is_some() {
+        vec![0.0f32; n]
+    } else {
+        Vec::new()
+    };
     let thr = lambda / beta;
     for it in 0..iterations {
         progress.check()?;
-        // u step: per-pixel weighted mean of the data (where observed) and the prediction.
+        // u step: per-pixel weighted mean of the data (where observed) and the prediction;
+        // `ua = u − a` for the x step in the same pass.
         u.par_iter_mut()
+            .zip(ua.par_iter_mut())
             .zip(kx.par_iter().zip(a.par_iter()))
             .zip(y.par_iter().zip(mask.par_iter()))
-            .for_each(|((u, (&kx, &a)), (&y, &m))| {
+            .for_each(|(((u, ua), (&kx, &a)), (&y, &m))| {
                 *u = (m * y + rho * (kx + a)) / (m + rho);
+                *ua = *u - a;
             });
-        // w step: isotropic shrinkage of ∇x + b.
+        // w step: isotropic shrinkage of ∇x + b; `d = w − b` for the x step in the same pass.
         wx.par_iter_mut()
             .zip(wy.par_iter_mut())
+            .zip(dx.par_iter_mut().zip(dy.par_iter_mut()))
             .zip(gx.par_iter().zip(gy.par_iter()))
             .zip(bx.par_iter().zip(by.par_iter()))
-            .for_each(|(((wx, wy), (&gx, &gy)), (&bx, &by))| {
+            .for_each(|((((wx, wy), (dx, dy)), (&gx, &gy)), (&bx, &by))| {
                 let (vx, vy) = (gx + bx, gy + by);
                 let m = (vx * vx + vy * vy).sqrt();
                 let s = if m > thr { (m - thr) / m } else { 0.0 };
                 *wx = s * vx;
                 *wy = s * vy;
+                *dx = *wx - bx;
+                *dy = *wy - by;
             });
         // x step: (ρ KᵀK + β DᵀD) x = ρ Kᵀ(u − a) + β Dᵀ(w − b).
-        let ua: Vec<f32> = u.par_iter().zip(a.par_iter()).map(|(u, a)| u - a).collect();
-        let dx: Vec<f32> = wx
-            .par_iter()
-            .zip(bx.par_iter())
-            .map(|(w, b)| w - b)
-            .collect();
-        let dy: Vec<f32> = wy
-            .par_iter()
-            .zip(by.par_iter())
-            .map(|(w, b)| w - b)
-            .collect();
         let mut div = grad_adjoint(&dx, &dy, width);
         if let Some(k) = direct {
-            let mut kt = vec![0.0f32; n];
             k.convolve_into(&ua, width, true, &mut kt);
             div.par_iter_mut()
                 .zip(kt.par_iter())

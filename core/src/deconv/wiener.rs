@@ -118,15 +118,7 @@ pub(super) fn gradient_power(fft: &Fft2) -> Vec<f32> {
 /// Boundaries: the image is mirror-padded by twice the kernel size (at least 16 px), tapered to
 /// its mean, grown to a 7-smooth FFT size, filtered, and cropped back ([`PadLayout`]).
 pub fn wiener(img: &Plane, psf: &Psf, nsr: Option<f64>) -> CoreResult<Plane> {
-    let tr = std::env::var("CALIPER_TRACE").is_ok();
-    let t0 = std::time::Instant::now();
-    let lap = |m: &str| {
-        if tr {
-            eprintln!("TRACE {m} {:?}", t0.elapsed())
-        }
-    };
     check_inputs(img, psf)?;
-    lap("check");
     let lambda = match nsr {
         Some(v) if v.is_finite() && v >= 0.0 => v,
         Some(v) => {
@@ -143,14 +135,10 @@ pub fn wiener(img: &Plane, psf: &Psf, nsr: Option<f64>) -> CoreResult<Plane> {
         (2 * psf.height).max(16),
         (2 * psf.width).max(16),
     );
-    lap("nsr");
     let padded = layout.pad_tapered(img);
-    lap("pad");
     let fft = Fft2::new(layout.padded_height, layout.padded_width);
     let kspec = fft.kernel_spectrum(psf.width, psf.height, |x, y| psf.at(x, y));
-    lap("kspec");
     let mut spec = fft.forward(&padded);
-    lap("fwd");
     let reg = gradient_power(&fft);
     let scale = 1.0 / (fft.height * fft.width) as f32;
     let lambda = lambda as f32;
@@ -164,9 +152,7 @@ pub fn wiener(img: &Plane, psf: &Psf, nsr: Option<f64>) -> CoreResult<Plane> {
                 C32::new(0.0, 0.0)
             };
         });
-    lap("mul");
     let out = fft.inverse(&spec);
-    lap("inv");
     let data = layout
         .crop(&out)
         .into_iter()
