@@ -47,11 +47,13 @@ impl PadLayout {
 
     /// The image part of a padded plane.
     pub fn crop(&self, padded: &[f32]) -> Vec<f32> {
-        let mut out = Vec::with_capacity(self.height * self.width);
-        for y in 0..self.height {
-            let start = (y + self.off_y) * self.padded_width + self.off_x;
-            out.extend_from_slice(&padded[start..start + self.width]);
-        }
+        let mut out = vec![0.0f32; self.height * self.width];
+        out.par_chunks_mut(self.width)
+            .enumerate()
+            .for_each(|(y, row)| {
+                let start = (y + self.off_y) * self.padded_width + self.off_x;
+                row.copy_from_slice(&padded[start..start + self.width]);
+            });
         out
     }
 
