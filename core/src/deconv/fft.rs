@@ -184,19 +184,24 @@ impl Fft2 {
 
     /// Spectrum of a kernel centred on the FFT origin (so that multiplying by it convolves
     /// without shifting): the kernel centre goes to (0, 0) and the rest wraps around.
-    ///
-    /// Only the kernel's few rows of the plane are non-zero, so after their row transforms each
-    /// column's transform is a short sum, `K[k] = Σ_j R_j · e^{−2πi k y_j / h}`, evaluated
-    /// directly (vectorised across columns) instead of by full column FFTs; that makes the
-    /// kernel spectrum a small fraction of the cost of an image transform. Kernels with many
-    /// rows relative to the height take the plain 2-D transform.
     pub fn kernel_spectrum(
         &self,
         kw: usize,
         kh: usize,
         k: impl Fn(usize, usize) -> f64,
     ) -> Vec<C32> {
-        let (h, w, wc) = (self.height, self.width, self.spec_width());
+        let (plane, _) = self.kernel_plane(kw, kh, k);
+        self.forward(&plane)
+    }
+
+    /// The kernel placed as in [`Fft2::kernel_spectrum`], and the plane rows it occupies.
+    fn kernel_plane(
+        &self,
+        kw: usize,
+        kh: usize,
+        k: impl Fn(usize, usize) -> f64,
+    ) -> (Vec<f32>, Vec<usize>) {
+        let (h, w) = (self.height, self.width);
         let mut plane = vec![0.0f32; h * w];
         let (cx, cy) = (kw / 2, kh / 2);
         let mut used = Vec::with_capacity(kh);
@@ -210,6 +215,26 @@ impl Fft2 {
         }
         used.sort_unstable();
         used.dedup();
+        (plane, used)
+    }
+
+    /// [`Fft2::kernel_spectrum`], faster for kernels of few rows (equal up to float rounding).
+    ///
+    /// Only the kernel's rows of the plane are non-zero, so after their row transforms each
+    /// column's transform is a short sum, `K[k] = Σ_j R_j · e^{−2πi k y_j / h}`, evaluated
+    /// directly (vectorised across columns) instead of by full column FFTs; that makes the
+    /// kernel spectrum a small fraction of the cost of an image transform. Kernels with many
+    /// rows relative to the height take the plain 2-D transform. The non-blind solvers use it;
+    /// the blind estimator keeps [`Fft2::kernel_spectrum`], whose coarse-to-fine search is
+    /// chaotic enough for rounding differences to change which kernel it settles on.
+    pub(super) fn kernel_spectrum_direct(
+        &self,
+        kw: usize,
+        kh: usize,
+        k: impl Fn(usize, usize) -> f64,
+    ) -> Vec<C32> {
+        let (h, w, wc) = (self.height, self.width, self.spec_width());
+        let (plane, used) = self.kernel_plane(kw, kh, k);
         // A direct column sum costs one vectorised complex multiply-add per row and bin; the
         // column FFTs about `5 log₂ h` flops per bin plus the gathers and the recombination.
         if used.len() > 2 * h.max(2).ilog2() as usize {

@@ -155,6 +155,10 @@ mod tests {
             let fft = Fft2::new(h, w);
             let kspec = fft.kernel_spectrum(psf.width, psf.height, |a, b| psf.at(a, b));
             let sparse = SparseKernel::new(psf.width, psf.height, |a, b| psf.at(a, b));
+            let direct = fft.kernel_spectrum_direct(psf.width, psf.height, |a, b| psf.at(a, b));
+            for (a, b) in direct.iter().zip(&kspec) {
+                assert!((a - b).norm() < 1e-5, "{a} vs {b}");
+            }
             for adjoint in [false, true] {
                 let want = convolve(&fft, &x, &kspec, adjoint);
                 let mut got = vec![1.0f32; h * w];

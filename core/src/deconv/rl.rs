@@ -67,7 +67,7 @@ pub fn richardson_lucy(
     let kspec = if sparse.worth_it(n) {
         None
     } else {
-        Some(fft.kernel_spectrum(psf.width, psf.height, |x, y| psf.at(x, y)))
+        Some(fft.kernel_spectrum_direct(psf.width, psf.height, |x, y| psf.at(x, y)))
     };
     let width = fft.width;
     let conv = |plane: &[f32], adjoint: bool, out: &mut Vec<f32>| match &kspec {

@@ -96,7 +96,7 @@ pub fn tv_deconv(
     let lambda = params.lambda.unwrap_or_else(|| auto_tv_lambda(img)) as f32;
     let layout = PadLayout::new(img.height, img.width, psf.height / 2 + 2, psf.width / 2 + 2);
     let fft = Fft2::new(layout.padded_height, layout.padded_width);
-    let kspec = fft.kernel_spectrum(psf.width, psf.height, |x, y| psf.at(x, y));
+    let kspec = fft.kernel_spectrum_direct(psf.width, psf.height, |x, y| psf.at(x, y));
     let mask = layout.mask();
     let y = layout.pad_mirror(img);
     let x0 = layout.pad_tapered(img);

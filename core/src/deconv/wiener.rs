@@ -146,7 +146,7 @@ pub fn wiener(img: &Plane, psf: &Psf, nsr: Option<f64>) -> CoreResult<Plane> {
     );
     let padded = layout.pad_tapered(img);
     let fft = Fft2::new(layout.padded_height, layout.padded_width);
-    let kspec = fft.kernel_spectrum(psf.width, psf.height, |x, y| psf.at(x, y));
+    let kspec = fft.kernel_spectrum_direct(psf.width, psf.height, |x, y| psf.at(x, y));
     let mut spec = fft.forward(&padded);
     let scale = 1.0 / (fft.height * fft.width) as f32;
     let lambda = lambda as f32;
