@@ -83,9 +83,7 @@ async fn deblur_sharpens_a_16_bit_rgb_image_and_keeps_its_format() {
     let psf = Psf::motion(11.0, 30.0).expect("psf");
     let blurred = blur(&sharp, w as usize, h as usize, &psf);
     let s = start().await;
-    let ds = s
-        .dataset(vec![("shot.png", to_png16(&blurred, w, h))])
-        .await;
+    let ds = s.dataset(vec![("shot.png", to_png16(&blurred, w, h))]).await;
     let id = s
         .job(json!({"kind": "deblur", "dataset": ds, "params": {"method": "tv", "psf": psf}}))
         .await;
@@ -252,10 +250,7 @@ async fn blind_and_gyro_deblur_return_their_kernels() {
         }
     }
     // A 9 px box along x has variance (9² − 1) / 12 ≈ 6.7 px².
-    assert!(
-        sx > 3.0 && sx > 3.0 * sy,
-        "kernel spread x {sx:.2}, y {sy:.2}"
-    );
+    assert!(sx > 3.0 && sx > 3.0 * sy, "kernel spread x {sx:.2}, y {sy:.2}");
 
     // Gyro: 0.5 rad/s about the camera's y axis for 20 ms at fx = 500 px is a 5 px streak.
     let samples: Vec<Value> = (0..=30)
@@ -277,10 +272,7 @@ async fn blind_and_gyro_deblur_return_their_kernels() {
         .collect();
     let extent_x = cols.last().unwrap_or(&0) - cols.first().unwrap_or(&0);
     let extent_y = rows.last().unwrap_or(&0) - rows.first().unwrap_or(&0);
-    assert!(
-        (4..=7).contains(&extent_x),
-        "gyro streak {extent_x} px wide, kernel {k:?}"
-    );
+    assert!((4..=7).contains(&extent_x), "gyro streak {extent_x} px wide, kernel {k:?}");
     assert!(extent_y <= 1, "gyro streak {extent_y} px tall");
     s.stop().await;
 }

@@ -41,10 +41,7 @@ fn internal(e: impl std::fmt::Display) -> JobError {
 }
 
 /// Decode an image keeping its pixel format, within the service's image limits.
-pub fn decode_keep_format(
-    bytes: &[u8],
-    name: &str,
-) -> Result<(DynamicImage, ImageFormat), JobError> {
+pub fn decode_keep_format(bytes: &[u8], name: &str) -> Result<(DynamicImage, ImageFormat), JobError> {
     let limits = ImageLimits::default();
     let reader = ImageReader::new(Cursor::new(bytes))
         .with_guessed_format()
@@ -72,10 +69,7 @@ pub fn decode_keep_format(
 
 /// Encode in `format` (PNG, TIFF or JPEG; JPEG can only hold 8-bit grey/RGB, which is what a
 /// JPEG decodes to anyway).
-pub fn encode(
-    img: &DynamicImage,
-    format: ImageFormat,
-) -> Result<(Vec<u8>, &'static str), JobError> {
+pub fn encode(img: &DynamicImage, format: ImageFormat) -> Result<(Vec<u8>, &'static str), JobError> {
     let (format, media) = match format {
         ImageFormat::Tiff => (ImageFormat::Tiff, "image/tiff"),
         ImageFormat::Jpeg => (ImageFormat::Jpeg, "image/jpeg"),
@@ -97,8 +91,9 @@ fn preview(before: &DynamicImage, after: &DynamicImage) -> Result<Vec<u8>, JobEr
     image::imageops::replace(&mut canvas, &after.to_rgb8(), i64::from(w) + 8, 0);
     let canvas = DynamicImage::ImageRgb8(canvas);
     let canvas = if canvas.width() > PREVIEW_WIDTH {
-        let nh = (u64::from(canvas.height()) * u64::from(PREVIEW_WIDTH) / u64::from(canvas.width()))
-            .max(1) as u32;
+        let nh = (u64::from(canvas.height()) * u64::from(PREVIEW_WIDTH)
+            / u64::from(canvas.width()))
+        .max(1) as u32;
         canvas.resize_exact(PREVIEW_WIDTH, nh, image::imageops::FilterType::Triangle)
     } else {
         canvas
