@@ -5,7 +5,8 @@
 //! `cargo bench -p caliper-core --bench deconv_vs_skimage`
 //! Env: `CALIPER_DECONV_DATA` (default `<workspace>/../shared/data/blur/skimage`),
 //! `CALIPER_BENCH_NO_PEER=1` (skip the peer), `CALIPER_BENCH_IMAGES` (comma-separated file stems,
-//! default `camera,astronaut,coffee,chelsea`). The benchmark set is built deterministically in
+//! default `camera,astronaut,coffee,chelsea`), `CALIPER_BENCH_TIMING_ONLY=1` (only the 1920×1080
+//! timings, skipping the quality set). The benchmark set is built deterministically in
 //! this run; the recipe is in `core/benches/deconv_set.md`.
 
 use std::path::{Path, PathBuf};
@@ -286,6 +287,12 @@ fn main() {
         .unwrap_or_else(|_| "camera,astronaut,coffee,chelsea".to_string());
     let tmp = std::env::temp_dir().join(format!("caliper_deconv_bench_{}", std::process::id()));
     std::fs::create_dir_all(&tmp).expect("temp dir");
+    let timing_only = std::env::var("CALIPER_BENCH_TIMING_ONLY").as_deref() == Ok("1");
+    if timing_only {
+        timing_1080(&dir, &tmp, use_peer);
+        let _ = std::fs::remove_dir_all(&tmp);
+        return;
+    }
     let ks = kernels();
     let mut cases = Vec::new();
     for (ii, stem) in stems.split(',').enumerate() {
@@ -375,7 +382,12 @@ fn main() {
         rows.len()
     );
 
-    // 1920×1080 timings.
+    timing_1080(&dir, &tmp, use_peer);
+    let _ = std::fs::remove_dir_all(&tmp);
+}
+
+/// 1920×1080 timings of Wiener, RL-30 and TV-80 (and the peer's Wiener and RL-30).
+fn timing_1080(dir: &Path, tmp: &Path, use_peer: bool) {
     let src = load_luma(&dir.join("astronaut.png")).or_else(|| load_luma(&dir.join("camera.png")));
     if let Some((w, h, d)) = src {
         // Timing only: the content (a resized photo) does not change the work done.
@@ -406,7 +418,6 @@ fn main() {
             pr / tr
         );
     }
-    let _ = std::fs::remove_dir_all(&tmp);
 }
 
 /// Median wall time in ms of `runs` calls, and the last result.

@@ -8,6 +8,8 @@
 //! edges — continuous with the content — and fades smoothly to the image mean across the margin,
 //! so that the wrap-around seam lies where both sides equal the same constant.
 
+use rayon::prelude::*;
+
 use super::Plane;
 
 /// Where an image of `height × width` sits inside a padded `padded_height × padded_width` domain.
@@ -45,11 +47,13 @@ impl PadLayout {
 
     /// The image part of a padded plane.
     pub fn crop(&self, padded: &[f32]) -> Vec<f32> {
-        let mut out = Vec::with_capacity(self.height * self.width);
-        for y in 0..self.height {
-            let start = (y + self.off_y) * self.padded_width + self.off_x;
-            out.extend_from_slice(&padded[start..start + self.width]);
-        }
+        let mut out = vec![0.0f32; self.height * self.width];
+        out.par_chunks_mut(self.width)
+            .enumerate()
+            .for_each(|(y, row)| {
+                let start = (y + self.off_y) * self.padded_width + self.off_x;
+                row.copy_from_slice(&padded[start..start + self.width]);
+            });
         out
     }
 
@@ -82,12 +86,14 @@ impl PadLayout {
         let ys = Self::axis(self.height, self.padded_height, self.off_y);
         let xs = Self::axis(self.width, self.padded_width, self.off_x);
         let mut out = vec![0.0f32; self.padded_height * self.padded_width];
-        for (row, &(sy, wy)) in out.chunks_mut(self.padded_width).zip(&ys) {
-            let src = &img.data[sy * img.width..(sy + 1) * img.width];
-            for (o, &(sx, wx)) in row.iter_mut().zip(&xs) {
-                *o = mean + wy * wx * (src[sx] - mean);
-            }
-        }
+        out.par_chunks_mut(self.padded_width)
+            .zip(&ys)
+            .for_each(|(row, &(sy, wy))| {
+                let src = &img.data[sy * img.width..(sy + 1) * img.width];
+                for (o, &(sx, wx)) in row.iter_mut().zip(&xs) {
+                    *o = mean + wy * wx * (src[sx] - mean);
+                }
+            });
         out
     }
 
@@ -96,12 +102,14 @@ impl PadLayout {
         let ys = Self::axis(self.height, self.padded_height, self.off_y);
         let xs = Self::axis(self.width, self.padded_width, self.off_x);
         let mut out = vec![0.0f32; self.padded_height * self.padded_width];
-        for (row, &(sy, _)) in out.chunks_mut(self.padded_width).zip(&ys) {
-            let src = &img.data[sy * img.width..(sy + 1) * img.width];
-            for (o, &(sx, _)) in row.iter_mut().zip(&xs) {
-                *o = src[sx];
-            }
-        }
+        out.par_chunks_mut(self.padded_width)
+            .zip(&ys)
+            .for_each(|(row, &(sy, _))| {
+                let src = &img.data[sy * img.width..(sy + 1) * img.width];
+                for (o, &(sx, _)) in row.iter_mut().zip(&xs) {
+                    *o = src[sx];
+                }
+            });
         out
     }
 

@@ -2,7 +2,8 @@
 
 use rayon::prelude::*;
 
-use super::fft::{C32, Fft2};
+use super::fft::Fft2;
+use super::ops::{SparseKernel, convolve};
 use super::{PadLayout, Plane, Psf, check_inputs};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
@@ -59,17 +60,19 @@ pub fn richardson_lucy(
     }
     let layout = PadLayout::new(img.height, img.width, psf.height / 2, psf.width / 2);
     let fft = Fft2::new(layout.padded_height, layout.padded_width);
-    let kspec = fft.kernel_spectrum(psf.width, psf.height, |x, y| psf.at(x, y));
-    let scale = 1.0 / (fft.height * fft.width) as f32;
-    let conv = |plane: &[f32], adjoint: bool| -> Vec<f32> {
-        let mut spec = fft.forward(plane);
-        spec.par_iter_mut()
-            .zip(kspec.par_iter())
-            .for_each(|(s, k)| {
-                let k: C32 = if adjoint { k.conj() } else { *k };
-                *s = *s * k * scale;
-            });
-        fft.inverse(&spec)
+    let n = fft.height * fft.width;
+    let sparse = SparseKernel::new(psf.width, psf.height, |x, y| psf.at(x, y));
+    // Thin (motion) kernels are convolved directly; others through the FFT, whose kernel
+    // spectrum is then computed once.
+    let kspec = if sparse.worth_it(n) {
+        None
+    } else {
+        Some(fft.kernel_spectrum_direct(psf.width, psf.height, |x, y| psf.at(x, y)))
+    };
+    let width = fft.width;
+    let conv = |plane: &[f32], adjoint: bool, out: &mut Vec<f32>| match &kspec {
+        None => sparse.convolve_into(plane, width, adjoint, out),
+        Some(k) => *out = convolve(&fft, plane, k, adjoint),
     };
 
     let mask = layout.mask();
@@ -79,7 +82,8 @@ pub fn richardson_lucy(
         .zip(&mask)
         .map(|(v, m)| v.max(0.0) * m)
         .collect();
-    let weight = conv(&mask, true);
+    let mut weight = vec![0.0f32; n];
+    conv(&mask, true, &mut weight);
     let support: Vec<bool> = weight.iter().map(|&w| w > MIN_WEIGHT).collect();
     // Start from the mirrored image on the object domain, strictly positive so that no pixel is
     // frozen at zero by the multiplicative update.
@@ -90,16 +94,20 @@ pub fn richardson_lucy(
         .map(|(&v, &s)| if s { v.max(1e-3) } else { 0.0 })
         .collect();
 
+    let mut blurred = vec![0.0f32; n];
+    let mut ratio = vec![0.0f32; n];
+    let mut back = vec![0.0f32; n];
+    let mut curv = vec![0.0f32; n];
     for it in 0..iterations {
         progress.check()?;
-        let blurred = conv(&x, false);
-        let ratio: Vec<f32> = data
-            .par_iter()
+        conv(&x, false, &mut blurred);
+        ratio
+            .par_iter_mut()
+            .zip(data.par_iter())
             .zip(blurred.par_iter().zip(mask.par_iter()))
-            .map(|(&y, (&b, &m))| if m > 0.0 { y / b.max(1e-6) } else { 0.0 })
-            .collect();
-        let back = conv(&ratio, true);
-        let curv = tv_curvature(&x, &support, layout.padded_width);
+            .for_each(|((r, &y), (&b, &m))| *r = if m > 0.0 { y / b.max(1e-6) } else { 0.0 });
+        conv(&ratio, true, &mut back);
+        tv_curvature(&x, &support, layout.padded_width, &mut curv);
         x.par_iter_mut()
             .zip(
                 back.par_iter()
@@ -126,42 +134,87 @@ pub fn richardson_lucy(
 
 /// `div(∇x / |∇x|)` (forward differences for the gradient, backward for the divergence), with
 /// differences across the edge of the object domain treated as zero so that the domain's own
-/// border does not act as an edge.
-fn tv_curvature(x: &[f32], support: &[bool], width: usize) -> Vec<f32> {
+/// border does not act as an edge. Written into `out`.
+///
+/// Works on blocks of rows in parallel, carrying the unit gradients of the row above in small
+/// buffers rather than storing them for the whole image, which keeps the pass in cache and
+/// allocation-free.
+fn tv_curvature(x: &[f32], support: &[bool], width: usize, out: &mut [f32]) {
+    let height = x.len() / width;
+    out.par_chunks_mut(width * CURV_ROWS)
+        .enumerate()
+        .for_each_init(
+            || [(); 4].map(|_| vec![0.0f32; width]),
+            |[ux, uy, ux_up, uy_up], (b, block)| {
+                let r0 = b * CURV_ROWS;
+                if r0 > 0 {
+                    // Only the vertical component of the row above is used.
+                    unit_gradients(x, support, width, height, r0 - 1, ux_up, uy_up);
+                } else {
+                    uy_up.fill(0.0);
+                }
+                for (dr, o) in block.chunks_mut(width).enumerate() {
+                    let r = r0 + dr;
+                    unit_gradients(x, support, width, height, r, ux, uy);
+                    let s = &support[r * width..(r + 1) * width];
+                    for c in 0..width {
+                        o[c] = if s[c] {
+                            let left = if c > 0 { ux[c - 1] } else { 0.0 };
+                            (ux[c] - left) + (uy[c] - uy_up[c])
+                        } else {
+                            0.0
+                        };
+                    }
+                    // This row is the next one's row above.
+                    std::mem::swap(ux, ux_up);
+                    std::mem::swap(uy, uy_up);
+                }
+            },
+        );
+}
+
+/// Rows per task of [`tv_curvature`]: each task recomputes the unit gradients of the row above
+/// its first row, so blocks amortise that over several rows.
+const CURV_ROWS: usize = 16;
+
+/// Unit gradient `∇x / |∇x|` (ε-smoothed) of row `r` into `ux`, `uy`; zero off the support and
+/// for differences that leave it or the domain.
+fn unit_gradients(
+    x: &[f32],
+    support: &[bool],
+    width: usize,
+    height: usize,
+    r: usize,
+    ux: &mut [f32],
+    uy: &mut [f32],
+) {
     const EPS: f32 = 1e-3;
-    let n = x.len();
-    let grad = |i: usize| -> (f32, f32) {
-        if !support[i] {
-            return (0.0, 0.0);
+    let base = r * width;
+    let row = &x[base..base + width];
+    let srow = &support[base..base + width];
+    let below = (r + 1 < height).then(|| {
+        (
+            &x[base + width..base + 2 * width],
+            &support[base + width..base + 2 * width],
+        )
+    });
+    for c in 0..width {
+        if !srow[c] {
+            ux[c] = 0.0;
+            uy[c] = 0.0;
+            continue;
         }
-        let gx = if !(i + 1).is_multiple_of(width) && support[i + 1] {
-            x[i + 1] - x[i]
+        let gx = if c + 1 < width && srow[c + 1] {
+            row[c + 1] - row[c]
         } else {
             0.0
         };
-        let gy = if i + width < n && support[i + width] {
-            x[i + width] - x[i]
-        } else {
-            0.0
+        let gy = match below {
+            Some((xb, sb)) if sb[c] => xb[c] - row[c],
+            _ => 0.0,
         };
         let m = (gx * gx + gy * gy + EPS * EPS).sqrt();
-        (gx / m, gy / m)
-    };
-    let units: Vec<(f32, f32)> = (0..n).into_par_iter().map(grad).collect();
-    (0..n)
-        .into_par_iter()
-        .map(|i| {
-            if !support[i] {
-                return 0.0;
-            }
-            let (ux, uy) = units[i];
-            let left = if !i.is_multiple_of(width) {
-                units[i - 1].0
-            } else {
-                0.0
-            };
-            let up = if i >= width { units[i - width].1 } else { 0.0 };
-            (ux - left) + (uy - up)
-        })
-        .collect()
+        ux[c] = gx / m;
+        uy[c] = gy / m;
+    }
 }

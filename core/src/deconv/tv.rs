@@ -4,7 +4,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::fft::{C32, Fft2};
-use super::ops::{grad, grad_adjoint};
+use super::ops::{SparseKernel, grad, grad_adjoint};
 use super::wiener::{estimate_noise_sigma, gradient_power};
 use super::{PadLayout, Plane, Psf, check_inputs};
 use crate::error::{CoreError, CoreResult};
@@ -96,13 +96,16 @@ pub fn tv_deconv(
     let lambda = params.lambda.unwrap_or_else(|| auto_tv_lambda(img)) as f32;
     let layout = PadLayout::new(img.height, img.width, psf.height / 2 + 2, psf.width / 2 + 2);
     let fft = Fft2::new(layout.padded_height, layout.padded_width);
-    let kspec = fft.kernel_spectrum(psf.width, psf.height, |x, y| psf.at(x, y));
+    let kspec = fft.kernel_spectrum_direct(psf.width, psf.height, |x, y| psf.at(x, y));
     let mask = layout.mask();
     let y = layout.pad_mirror(img);
     let x0 = layout.pad_tapered(img);
+    let sparse = SparseKernel::new(psf.width, psf.height, |x, y| psf.at(x, y));
+    let direct = sparse.worth_it(fft.height * fft.width).then_some(&sparse);
     let out = admm_tv(
         &fft,
         &kspec,
+        direct,
         &y,
         &mask,
         x0,
@@ -127,10 +130,16 @@ const BETA_PER_LAMBDA: f32 = 100.0;
 
 /// The ADMM loop of [`tv_deconv`] on a padded domain (`y` data, `mask` 1 where observed, `x`
 /// the start), shared with the blind solver's final step.
+///
+/// `direct`, the same kernel as `kspec` as taps, when convolving directly is cheaper
+/// ([`SparseKernel::worth_it`]): then `Kᵀ(u − a)` and `Kx` are formed in the pixel domain and,
+/// by linearity, the right-hand side of the `x` step needs one forward FFT instead of two and
+/// `Kx` no inverse, halving the FFTs per iteration.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn admm_tv(
     fft: &Fft2,
     kspec: &[C32],
+    direct: Option<&SparseKernel>,
     y: &[f32],
     mask: &[f32],
     mut x: Vec<f32>,
@@ -158,56 +167,73 @@ pub(super) fn admm_tv(
     let mut u = vec![0.0f32; n];
     let mut wx = vec![0.0f32; n];
     let mut wy = vec![0.0f32; n];
+    let mut ua = vec![0.0f32; n];
+    let mut dx = vec![0.0f32; n];
+    let mut dy = vec![0.0f32; n];
+    // Kᵀ(u − a) when convolving directly.
+    let mut kt = if direct.is_some() {
+        vec![0.0f32; n]
+    } else {
+        Vec::new()
+    };
     let thr = lambda / beta;
     for it in 0..iterations {
         progress.check()?;
-        // u step: per-pixel weighted mean of the data (where observed) and the prediction.
+        // u step: per-pixel weighted mean of the data (where observed) and the prediction;
+        // `ua = u − a` for the x step in the same pass.
         u.par_iter_mut()
+            .zip(ua.par_iter_mut())
             .zip(kx.par_iter().zip(a.par_iter()))
             .zip(y.par_iter().zip(mask.par_iter()))
-            .for_each(|((u, (&kx, &a)), (&y, &m))| {
+            .for_each(|(((u, ua), (&kx, &a)), (&y, &m))| {
                 *u = (m * y + rho * (kx + a)) / (m + rho);
+                *ua = *u - a;
             });
-        // w step: isotropic shrinkage of ∇x + b.
+        // w step: isotropic shrinkage of ∇x + b; `d = w − b` for the x step in the same pass.
         wx.par_iter_mut()
             .zip(wy.par_iter_mut())
+            .zip(dx.par_iter_mut().zip(dy.par_iter_mut()))
             .zip(gx.par_iter().zip(gy.par_iter()))
             .zip(bx.par_iter().zip(by.par_iter()))
-            .for_each(|(((wx, wy), (&gx, &gy)), (&bx, &by))| {
+            .for_each(|((((wx, wy), (dx, dy)), (&gx, &gy)), (&bx, &by))| {
                 let (vx, vy) = (gx + bx, gy + by);
                 let m = (vx * vx + vy * vy).sqrt();
                 let s = if m > thr { (m - thr) / m } else { 0.0 };
                 *wx = s * vx;
                 *wy = s * vy;
+                *dx = *wx - bx;
+                *dy = *wy - by;
             });
         // x step: (ρ KᵀK + β DᵀD) x = ρ Kᵀ(u − a) + β Dᵀ(w − b).
-        let ua: Vec<f32> = u.par_iter().zip(a.par_iter()).map(|(u, a)| u - a).collect();
-        let dx: Vec<f32> = wx
-            .par_iter()
-            .zip(bx.par_iter())
-            .map(|(w, b)| w - b)
-            .collect();
-        let dy: Vec<f32> = wy
-            .par_iter()
-            .zip(by.par_iter())
-            .map(|(w, b)| w - b)
-            .collect();
-        let div = grad_adjoint(&dx, &dy, width);
-        let s_ua = fft.forward(&ua);
-        let s_div = fft.forward(&div);
-        let xs: Vec<C32> = s_ua
-            .par_iter()
-            .zip(s_div.par_iter())
-            .zip(kspec.par_iter().zip(den.par_iter()))
-            .map(|((su, sd), (k, d))| (k.conj() * *su * rho + *sd * beta) * (scale / d))
-            .collect();
-        x = fft.inverse(&xs);
-        let kxs: Vec<C32> = xs
-            .par_iter()
-            .zip(kspec.par_iter())
-            .map(|(x, k)| x * k)
-            .collect();
-        kx = fft.inverse(&kxs);
+        let mut div = grad_adjoint(&dx, &dy, width);
+        if let Some(k) = direct {
+            k.convolve_into(&ua, width, true, &mut kt);
+            div.par_iter_mut()
+                .zip(kt.par_iter())
+                .for_each(|(d, &t)| *d = rho * t + beta * *d);
+            let mut xs = fft.forward(&div);
+            xs.par_iter_mut()
+                .zip(den.par_iter())
+                .for_each(|(x, d)| *x *= scale / d);
+            x = fft.inverse(&xs);
+            k.convolve_into(&x, width, false, &mut kx);
+        } else {
+            let s_ua = fft.forward(&ua);
+            let s_div = fft.forward(&div);
+            let xs: Vec<C32> = s_ua
+                .par_iter()
+                .zip(s_div.par_iter())
+                .zip(kspec.par_iter().zip(den.par_iter()))
+                .map(|((su, sd), (k, d))| (k.conj() * *su * rho + *sd * beta) * (scale / d))
+                .collect();
+            x = fft.inverse(&xs);
+            let kxs: Vec<C32> = xs
+                .par_iter()
+                .zip(kspec.par_iter())
+                .map(|(x, k)| x * k)
+                .collect();
+            kx = fft.inverse(&kxs);
+        }
         (gx, gy) = grad(&x, width);
         // Dual ascent.
         a.par_iter_mut()
