@@ -15,7 +15,8 @@ use image::{DynamicImage, ImageFormat, ImageReader};
 use serde_json::{Value, json};
 
 use super::{
-    Artifact, JobError, JobInput, JobKind, JobOutput, param_error, parse_params, stored_params,
+    Artifact, JobError, JobInput, JobKind, JobOutput, base_name, param_error, parse_params,
+    schema_of, stem, stored_params,
 };
 use crate::error::ApiError;
 use crate::store::{DatasetFile, DatasetKind};
@@ -110,15 +111,6 @@ fn preview(before: &DynamicImage, after: &DynamicImage) -> Result<Vec<u8>, JobEr
     Ok(out.into_inner())
 }
 
-fn base_name(name: &str) -> &str {
-    name.rsplit('/').next().unwrap_or(name)
-}
-
-fn stem(name: &str) -> &str {
-    let b = base_name(name);
-    b.rsplit_once('.').map_or(b, |(s, _)| s)
-}
-
 impl JobKind for Deblur {
     fn name(&self) -> &'static str {
         "deblur"
@@ -133,8 +125,7 @@ impl JobKind for Deblur {
         "Deblur images: Wiener, Richardson-Lucy or TV with a known kernel, blind kernel estimation (L0 prior, coarse to fine), or a kernel drawn from a gyro trace; same format and bit depth out, with the kernel."
     }
     fn params_schema(&self) -> Value {
-        serde_json::to_value(<DeblurParams as utoipa::PartialSchema>::schema())
-            .unwrap_or(Value::Null)
+        schema_of::<DeblurParams>()
     }
     fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
         let mut p: DeblurParams = parse_params(params)?;

@@ -13,7 +13,8 @@ use caliper_core::imu::{
 use serde_json::{Value, json};
 
 use super::{
-    Artifact, JobError, JobInput, JobKind, JobOutput, param_error, parse_params, stored_params,
+    Artifact, JobError, JobInput, JobKind, JobOutput, param_error, parse_params, schema_of,
+    stored_params, to_value,
 };
 use crate::error::ApiError;
 use crate::store::DatasetKind;
@@ -32,17 +33,6 @@ fn open_log(input: &JobInput) -> Result<Box<dyn BufRead>, JobError> {
         Box::new(raw)
     };
     Ok(Box::new(BufReader::with_capacity(1 << 20, reader)))
-}
-
-fn to_value<T: serde::Serialize>(v: &T) -> Result<Value, JobError> {
-    serde_json::to_value(v).map_err(|e| JobError::Permanent {
-        code: "internal_error",
-        message: e.to_string(),
-    })
-}
-
-fn schema_of<T: utoipa::PartialSchema>() -> Value {
-    serde_json::to_value(T::schema()).unwrap_or(Value::Null)
 }
 
 /// `imu_noise`: Allan deviation and the noise model of a static log.

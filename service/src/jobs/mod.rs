@@ -161,6 +161,30 @@ pub fn stored_params<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T
     })
 }
 
+/// Serialise a job result into the document's `parameters`.
+pub fn to_value<T: serde::Serialize>(v: &T) -> Result<Value, JobError> {
+    serde_json::to_value(v).map_err(|e| JobError::Permanent {
+        code: "internal_error",
+        message: e.to_string(),
+    })
+}
+
+/// JSON Schema of a parameter type, for `GET /v1/job-kinds`.
+pub fn schema_of<T: utoipa::PartialSchema>() -> Value {
+    serde_json::to_value(T::schema()).unwrap_or(Value::Null)
+}
+
+/// File name without the archive folders (`a/b/x.png` → `x.png`).
+pub fn base_name(name: &str) -> &str {
+    name.rsplit('/').next().unwrap_or(name)
+}
+
+/// Base name without its extension (`a/x.png` → `x`).
+pub fn stem(name: &str) -> &str {
+    let b = base_name(name);
+    b.rsplit_once('.').map_or(b, |(s, _)| s)
+}
+
 /// Map a core validation error to an API error on `params.<field>`.
 pub fn param_error(e: CoreError) -> ApiError {
     match e {

@@ -23,7 +23,8 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
 use super::{
-    Artifact, JobError, JobInput, JobKind, JobOutput, param_error, parse_params, stored_params,
+    Artifact, JobError, JobInput, JobKind, JobOutput, base_name, param_error, parse_params,
+    schema_of, stem, stored_params, to_value,
 };
 use crate::error::ApiError;
 use crate::store::{DatasetFile, DatasetKind};
@@ -143,26 +144,6 @@ fn permanent(message: String) -> JobError {
         code: "invalid_input",
         message,
     }
-}
-
-fn to_value<T: Serialize>(v: &T) -> Result<Value, JobError> {
-    serde_json::to_value(v).map_err(|e| JobError::Permanent {
-        code: "internal_error",
-        message: e.to_string(),
-    })
-}
-
-fn schema_of<T: utoipa::PartialSchema>() -> Value {
-    serde_json::to_value(T::schema()).unwrap_or(Value::Null)
-}
-
-fn base_name(name: &str) -> &str {
-    name.rsplit('/').next().unwrap_or(name)
-}
-
-fn stem(name: &str) -> &str {
-    let b = base_name(name);
-    b.rsplit_once('.').map_or(b, |(s, _)| s)
 }
 
 /// Natural order: digit runs compare as numbers, so `f2` < `f10`.
