@@ -6,26 +6,13 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::time::Instant;
 
 use caliper_core::NoProgress;
 use caliper_core::blur::{BlurParams, laplacian_variance, score_images, svd_beta};
 use caliper_core::io::{ImageLimits, decode_gray8};
 
 mod common;
-use common::median;
-
-/// Median wall time in ms of `runs` calls, and the last result.
-fn timed<T>(runs: usize, mut f: impl FnMut() -> T) -> (T, f64) {
-    let mut ts = Vec::with_capacity(runs);
-    let mut out = None;
-    for _ in 0..runs {
-        let t0 = Instant::now();
-        out = Some(f());
-        ts.push(t0.elapsed().as_secs_f64() * 1e3);
-    }
-    (out.expect("runs >= 1"), median(ts))
-}
+use common::{median, timed};
 
 struct Ours {
     name: String,

@@ -20,7 +20,7 @@ use caliper_core::deconv::{
 };
 
 mod common;
-use common::median;
+use common::{median, timed};
 
 /// Side of the benchmark crops (Levin et al. 2009 use 255×255).
 const SIDE: usize = 255;
@@ -418,16 +418,4 @@ fn timing_1080(dir: &Path, tmp: &Path, use_peer: bool) {
             pr / tr
         );
     }
-}
-
-/// Median wall time in ms of `runs` calls, and the last result.
-fn timed<T>(runs: usize, mut f: impl FnMut() -> T) -> (T, f64) {
-    let mut ts = Vec::with_capacity(runs);
-    let mut out = None;
-    for _ in 0..runs {
-        let t0 = Instant::now();
-        out = Some(f());
-        ts.push(t0.elapsed().as_secs_f64() * 1e3);
-    }
-    (out.expect("runs >= 1"), median(ts))
 }

@@ -12,3 +12,17 @@ pub fn median(mut v: Vec<f64>) -> f64 {
         0.5 * (v[n / 2 - 1] + v[n / 2])
     }
 }
+
+/// Median wall time in ms of `runs` calls, and the last result. (Every bench binary compiles
+/// this module; those that time their stages differently leave it unused.)
+#[allow(dead_code)]
+pub fn timed<T>(runs: usize, mut f: impl FnMut() -> T) -> (T, f64) {
+    let mut ts = Vec::with_capacity(runs);
+    let mut out = None;
+    for _ in 0..runs {
+        let t0 = std::time::Instant::now();
+        out = Some(f());
+        ts.push(t0.elapsed().as_secs_f64() * 1e3);
+    }
+    (out.expect("runs >= 1"), median(ts))
+}
