@@ -6,7 +6,8 @@
 //! Env: `CALIPER_DECONV_DATA` (default `<workspace>/../shared/data/blur/skimage`),
 //! `CALIPER_BENCH_NO_PEER=1` (skip the peer), `CALIPER_BENCH_IMAGES` (comma-separated file stems,
 //! default `camera,astronaut,coffee,chelsea`), `CALIPER_BENCH_TIMING_ONLY=1` (only the 1920×1080
-//! timings, skipping the quality set). The benchmark set is built deterministically in
+//! timings, skipping the quality set), `CALIPER_BENCH_ONLY` (comma-separated subset of
+//! `wiener,rl,tv,blind,timing`; the others print NaN). The benchmark set is built deterministically in
 //! this run; the recipe is in `core/benches/deconv_set.md`.
 
 use std::path::{Path, PathBuf};
@@ -293,6 +294,8 @@ fn main() {
         let _ = std::fs::remove_dir_all(&tmp);
         return;
     }
+    let only = std::env::var("CALIPER_BENCH_ONLY").ok();
+    let want = |m: &str| only.as_deref().is_none_or(|o| o.split(',').any(|x| x.trim() == m));
     let ks = kernels();
     let mut cases = Vec::new();
     for (ii, stem) in stems.split(',').enumerate() {
@@ -325,16 +328,39 @@ fn main() {
     for (ci, c) in cases.iter().enumerate() {
         let p = |x: &Plane| psnr(x, &c.sharp, 1.0).expect("psnr");
         let before = p(&c.blurred);
-        let w = p(&wiener(&c.blurred, &c.psf, None).expect("wiener"));
-        let r30 = p(&richardson_lucy(&c.blurred, &c.psf, 30, &NoProgress).expect("rl"));
-        let r60 = p(&richardson_lucy(&c.blurred, &c.psf, 60, &NoProgress).expect("rl"));
-        let tv_img = tv_deconv(&c.blurred, &c.psf, &TvParams::default(), &NoProgress).expect("tv");
-        let tv = p(&tv_img);
-        let t0 = Instant::now();
-        let blind = blind_deconv(&c.blurred, &BlindParams::default(), &NoProgress).expect("blind");
-        let bt = t0.elapsed().as_secs_f64();
-        let er = error_ratio_aligned(&c.sharp, &blind.image, &tv_img, 20, 6).expect("ratio");
-        let (mut sw, mut s30, mut s60) = (f64::NAN, f64::NAN, f64::NAN);
+        let nan = f64::NAN;
+        let w = if want("wiener") {
+            p(&wiener(&c.blurred, &c.psf, None).expect("wiener"))
+        } else {
+            nan
+        };
+        let (r30, r60) = if want("rl") {
+            (
+                p(&richardson_lucy(&c.blurred, &c.psf, 30, &NoProgress).expect("rl")),
+                p(&richardson_lucy(&c.blurred, &c.psf, 60, &NoProgress).expect("rl")),
+            )
+        } else {
+            (nan, nan)
+        };
+        let (tv, er, bt) = if want("tv") || want("blind") {
+            let tv_img =
+                tv_deconv(&c.blurred, &c.psf, &TvParams::default(), &NoProgress).expect("tv");
+            let (er, bt) = if want("blind") {
+                let t0 = Instant::now();
+                let blind =
+                    blind_deconv(&c.blurred, &BlindParams::default(), &NoProgress).expect("blind");
+                let bt = t0.elapsed().as_secs_f64();
+                let er =
+                    error_ratio_aligned(&c.sharp, &blind.image, &tv_img, 20, 6).expect("ratio");
+                (er, bt)
+            } else {
+                (nan, nan)
+            };
+            (p(&tv_img), er, bt)
+        } else {
+            (nan, nan, nan)
+        };
+        let (mut sw, mut s30, mut s60) = (nan, nan, nan);
         if use_peer {
             let b = tmp.join(format!("b{ci}.png"));
             let s = tmp.join(format!("s{ci}.png"));
@@ -343,9 +369,13 @@ fn main() {
             save_png(&c.sharp, &s);
             std::fs::write(&k, c.psf.to_text()).expect("psf");
             let pad = c.psf.width;
-            sw = peer(&b, &k, Some(&s), "wiener", 30, pad, 1).map_or(f64::NAN, |x| x.0);
-            s30 = peer(&b, &k, Some(&s), "richardson_lucy", 30, pad, 1).map_or(f64::NAN, |x| x.0);
-            s60 = peer(&b, &k, Some(&s), "richardson_lucy", 60, pad, 1).map_or(f64::NAN, |x| x.0);
+            if want("wiener") {
+                sw = peer(&b, &k, Some(&s), "wiener", 30, pad, 1).map_or(nan, |x| x.0);
+            }
+            if want("rl") {
+                s30 = peer(&b, &k, Some(&s), "richardson_lucy", 30, pad, 1).map_or(nan, |x| x.0);
+                s60 = peer(&b, &k, Some(&s), "richardson_lucy", 60, pad, 1).map_or(nan, |x| x.0);
+            }
         }
         println!(
             "{:<24} {before:>6.2} | {w:>6.2} {sw:>6.2} | {r30:>6.2} {s30:>6.2} | {r60:>6.2} {s60:>6.2} | {tv:>6.2} | {er:>7.2} {bt:>6.2}",
@@ -382,7 +412,9 @@ fn main() {
         rows.len()
     );
 
-    timing_1080(&dir, &tmp, use_peer);
+    if want("timing") {
+        timing_1080(&dir, &tmp, use_peer);
+    }
     let _ = std::fs::remove_dir_all(&tmp);
 }
 
