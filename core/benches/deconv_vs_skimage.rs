@@ -295,7 +295,10 @@ fn main() {
         return;
     }
     let only = std::env::var("CALIPER_BENCH_ONLY").ok();
-    let want = |m: &str| only.as_deref().is_none_or(|o| o.split(',').any(|x| x.trim() == m));
+    let want = |m: &str| {
+        only.as_deref()
+            .is_none_or(|o| o.split(',').any(|x| x.trim() == m))
+    };
     let ks = kernels();
     let mut cases = Vec::new();
     for (ii, stem) in stems.split(',').enumerate() {
@@ -324,7 +327,7 @@ fn main() {
         "{:<24} {:>6} | {:>6} {:>6} | {:>6} {:>6} | {:>6} {:>6} | {:>6} | {:>7} {:>6}",
         "case", "blur", "wien", "sk", "rl30", "sk", "rl60", "sk", "tv", "blindER", "s"
     );
-    let mut rows: Vec<[f64; 10]> = Vec::new();
+    let mut rows: Vec<[f64; 12]> = Vec::new();
     for (ci, c) in cases.iter().enumerate() {
         let p = |x: &Plane| psnr(x, &c.sharp, 1.0).expect("psnr");
         let before = p(&c.blurred);
@@ -361,6 +364,8 @@ fn main() {
             (nan, nan, nan)
         };
         let (mut sw, mut s30, mut s60) = (nan, nan, nan);
+        // The peer as shipped (no padding: periodic Wiener, zero-padded RL).
+        let (mut sw0, mut s300) = (nan, nan);
         if use_peer {
             let b = tmp.join(format!("b{ci}.png"));
             let s = tmp.join(format!("s{ci}.png"));
@@ -371,17 +376,19 @@ fn main() {
             let pad = c.psf.width;
             if want("wiener") {
                 sw = peer(&b, &k, Some(&s), "wiener", 30, pad, 1).map_or(nan, |x| x.0);
+                sw0 = peer(&b, &k, Some(&s), "wiener", 30, 0, 1).map_or(nan, |x| x.0);
             }
             if want("rl") {
                 s30 = peer(&b, &k, Some(&s), "richardson_lucy", 30, pad, 1).map_or(nan, |x| x.0);
                 s60 = peer(&b, &k, Some(&s), "richardson_lucy", 60, pad, 1).map_or(nan, |x| x.0);
+                s300 = peer(&b, &k, Some(&s), "richardson_lucy", 30, 0, 1).map_or(nan, |x| x.0);
             }
         }
         println!(
             "{:<24} {before:>6.2} | {w:>6.2} {sw:>6.2} | {r30:>6.2} {s30:>6.2} | {r60:>6.2} {s60:>6.2} | {tv:>6.2} | {er:>7.2} {bt:>6.2}",
             c.name
         );
-        rows.push([before, w, sw, r30, s30, r60, s60, tv, er, bt]);
+        rows.push([before, w, sw, r30, s30, r60, s60, tv, er, bt, sw0, s300]);
     }
     let col = |i: usize| rows.iter().map(|r| r[i]).collect::<Vec<_>>();
     println!(
@@ -397,6 +404,16 @@ fn main() {
         mean(&col(7)),
         median(col(8)),
         mean(&col(9)),
+    );
+    println!(
+        "skimage as shipped (no padding): wiener {:.2} dB (ours {:+.2}), RL-30 {:.2} dB (ours {:+.2}); \
+         with mirror padding (columns above): wiener ours {:+.2}, RL-30 ours {:+.2}",
+        mean(&col(10)),
+        mean(&col(1)) - mean(&col(10)),
+        mean(&col(11)),
+        mean(&col(3)) - mean(&col(11)),
+        mean(&col(1)) - mean(&col(2)),
+        mean(&col(3)) - mean(&col(4)),
     );
     let ok = col(8).iter().filter(|&&e| e <= 3.0).count();
     println!(

@@ -18,6 +18,16 @@ pub const MAX_RL_ITERATIONS: usize = 10_000;
 /// small TV term removes that slow decline without visibly flattening texture.
 const TV_WEIGHT: f32 = 0.002;
 
+/// Exponent of the multiplicative correction, `x ← x · (Kᵀ(y/Kx) / w)^q`: the over-relaxed RL
+/// of Meinel (E. S. Meinel, "Origins of linear and nonlinear recursive restoration algorithms",
+/// JOSA A 3(6), 1986), which moves about `q` times as far per iteration along the same path
+/// and keeps the fixed point. 1.7 gained 0.65 dB at 30 iterations on the benchmark set
+/// (26.58 → 27.23 dB) and still improves with more iterations (28.0 dB at 200); 2 became
+/// unstable with the TV term (60 iterations worse than 30), 3 diverges. The Biggs-Andrews
+/// vector extrapolation (MATLAB `deconvlucy`) does nothing here: the TV term makes successive
+/// updates anti-correlated, so its step factor is always clamped to zero.
+const RELAXATION: f32 = 1.7;
+
 /// Below this normalisation weight an object pixel is considered unseen by the data.
 const MIN_WEIGHT: f32 = 1e-3;
 
@@ -40,7 +50,8 @@ const MIN_WEIGHT: f32 = 1e-3;
 /// Noise: the update is regularised by total variation as in N. Dey et al., "Richardson–Lucy
 /// algorithm with total variation regularization for 3D confocal microscope deconvolution",
 /// Microsc. Res. Tech. 69 (2006): the normaliser becomes `w − λ div(∇x/|∇x|)`, λ = 0.002, so
-/// more iterations do not amplify noise without bound.
+/// more iterations do not amplify noise without bound. The correction is over-relaxed
+/// ([`RELAXATION`]), so 30 iterations reach what plain RL needs about 50 for.
 ///
 /// The circular convolutions run on a 7-smooth FFT domain at least the image plus the kernel size,
 /// which is exactly enough for the wrap-around never to mix the two sides of the object domain.
@@ -117,7 +128,7 @@ pub fn richardson_lucy(
             .for_each(|((x, (&c, (&w, &s))), &k)| {
                 let den = (w - TV_WEIGHT * k).max(0.2 * w);
                 *x = if s {
-                    (*x * c.max(0.0) / den).max(0.0)
+                    (*x * (c.max(0.0) / den).powf(RELAXATION)).max(0.0)
                 } else {
                     0.0
                 };
@@ -188,7 +199,10 @@ fn unit_gradients(
     ux: &mut [f32],
     uy: &mut [f32],
 ) {
-    const EPS: f32 = 1e-3;
+    // The ε-smoothing of |∇x|: at the noise level, so that noise-sized gradients are not
+    // pushed at full strength (which makes the update oscillate); 0.001–0.03 change the result
+    // by < 0.1 dB.
+    const EPS: f32 = 0.01;
     let base = r * width;
     let row = &x[base..base + width];
     let srow = &support[base..base + width];

@@ -84,6 +84,10 @@ pub fn auto_tv_lambda(img: &Plane) -> f64 {
 /// the Fourier domain (all operators are circular on the padded domain), `u` is a per-pixel
 /// average of data and prediction, and `w` is isotropic soft shrinkage.
 ///
+/// A hyper-Laplacian prior `Σ|∇x|ᵖ` (Krishnan & Fergus, NIPS 2009), tried in the same loop with
+/// the exact `ℓp` shrinkage for p = 0.9, 0.8, 0.67 and the weight re-tuned, was 0.05–1 dB below
+/// TV on the benchmark set, so TV stays.
+///
 /// `progress.check()` runs every iteration.
 pub fn tv_deconv(
     img: &Plane,
