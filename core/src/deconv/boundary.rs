@@ -47,12 +47,19 @@ impl PadLayout {
 
     /// The image part of a padded plane.
     pub fn crop(&self, padded: &[f32]) -> Vec<f32> {
+        self.crop_map(padded, |v| v)
+    }
+
+    /// The image part of a padded plane with `f` applied to each value, in one pass.
+    pub fn crop_map(&self, padded: &[f32], f: impl Fn(f32) -> f32 + Sync) -> Vec<f32> {
         let mut out = vec![0.0f32; self.height * self.width];
         out.par_chunks_mut(self.width)
             .enumerate()
             .for_each(|(y, row)| {
                 let start = (y + self.off_y) * self.padded_width + self.off_x;
-                row.copy_from_slice(&padded[start..start + self.width]);
+                for (o, &v) in row.iter_mut().zip(&padded[start..start + self.width]) {
+                    *o = f(v);
+                }
             });
         out
     }

@@ -1,10 +1,9 @@
-//! 2-D real FFTs on `f32` planes, built from `realfft` 1-D transforms, with cached plans.
+//! 2-D real FFTs on `f32` planes: `realfft` real transforms along rows, `rustfft` complex
+//! transforms along the columns of the half spectrum, with cached plans.
 //!
 //! Rows use real-to-complex transforms (half the work of complex ones). The columns of the
-//! half spectrum are complex; caliper-core only links `realfft`, so a complex column transform of
-//! `z = a + ib` is assembled from two real transforms, `Z = A + iB` with `A`, `B` extended to the
-//! full length by Hermitian symmetry — the same flop count as one complex FFT. The inverse uses
-//! `IFFT(z) = conj(FFT(conj(z)))`.
+//! half spectrum are complex and are transformed in place, many per call (rustfft batches a
+//! buffer holding several columns back to back, with its SIMD kernels).
 //!
 //! Spectra are stored column-major (`spec[c * height + k]`, `c < width / 2 + 1`) so that the column
 //! passes work on contiguous memory; pointwise filters do not care about the layout as long as
@@ -15,15 +14,16 @@ use std::sync::{Arc, Mutex, OnceLock};
 use rayon::prelude::*;
 use realfft::num_complex::Complex;
 use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
+use rustfft::{Fft, FftPlanner};
 
 /// Complex sample type of the spectra.
 pub type C32 = Complex<f32>;
 
-/// The process-wide planner: `RealFftPlanner` memoises plans (and their twiddle tables) per
-/// length, so repeated deconvolutions at one size plan only once.
-fn planner() -> &'static Mutex<RealFftPlanner<f32>> {
-    static PLANNER: OnceLock<Mutex<RealFftPlanner<f32>>> = OnceLock::new();
-    PLANNER.get_or_init(|| Mutex::new(RealFftPlanner::new()))
+/// The process-wide planners: both memoise plans (and their twiddle tables) per length, so
+/// repeated deconvolutions at one size plan only once.
+fn planner() -> &'static Mutex<(RealFftPlanner<f32>, FftPlanner<f32>)> {
+    static PLANNER: OnceLock<Mutex<(RealFftPlanner<f32>, FftPlanner<f32>)>> = OnceLock::new();
+    PLANNER.get_or_init(|| Mutex::new((RealFftPlanner::new(), FftPlanner::new())))
 }
 
 /// Whether `n` has no prime factor above 7: the lengths rustfft handles with its fastest
@@ -58,19 +58,22 @@ pub struct Fft2 {
     pub width: usize,
     row_fwd: Arc<dyn RealToComplex<f32>>,
     row_inv: Arc<dyn ComplexToReal<f32>>,
-    col_fwd: Arc<dyn RealToComplex<f32>>,
+    col_fwd: Arc<dyn Fft<f32>>,
+    col_inv: Arc<dyn Fft<f32>>,
 }
 
 impl Fft2 {
     /// Plans (or fetches cached plans) for `height × width`.
     pub fn new(height: usize, width: usize) -> Self {
         let mut p = planner().lock().unwrap_or_else(|e| e.into_inner());
+        let (real, complex) = &mut *p;
         Self {
             height,
             width,
-            row_fwd: p.plan_fft_forward(width),
-            row_inv: p.plan_fft_inverse(width),
-            col_fwd: p.plan_fft_forward(height),
+            row_fwd: real.plan_fft_forward(width),
+            row_inv: real.plan_fft_inverse(width),
+            col_fwd: complex.plan_fft_forward(height),
+            col_inv: complex.plan_fft_inverse(height),
         }
     }
 
@@ -110,19 +113,16 @@ impl Fft2 {
         );
         let mut spec = vec![C32::new(0.0, 0.0); h * wc];
         spec.par_chunks_mut(h * BLOCK).enumerate().for_each_init(
-            || ColScratch::new(&self.col_fwd, h),
-            |s, (b, out)| {
+            || vec![C32::new(0.0, 0.0); self.col_fwd.get_inplace_scratch_len()],
+            |scratch, (b, out)| {
                 let (c0, nc) = (b * BLOCK, out.len() / h);
                 for k in 0..h {
                     let src = &rows[k * wc + c0..k * wc + c0 + nc];
                     for (ci, v) in src.iter().enumerate() {
-                        s.re[ci * h + k] = v.re;
-                        s.im[ci * h + k] = v.im;
+                        out[ci * h + k] = *v;
                     }
                 }
-                for (ci, col) in out.chunks_mut(h).enumerate() {
-                    s.complex_fft(&self.col_fwd, ci, col, false);
-                }
+                self.col_fwd.process_with_scratch(out, scratch);
             },
         );
         spec
@@ -135,21 +135,10 @@ impl Fft2 {
     pub fn inverse(&self, spec: &[C32]) -> Vec<f32> {
         let (h, w, wc) = (self.height, self.width, self.spec_width());
         debug_assert_eq!(spec.len(), h * wc);
-        let mut cols = vec![C32::new(0.0, 0.0); h * wc];
-        cols.par_chunks_mut(h * BLOCK).enumerate().for_each_init(
-            || ColScratch::new(&self.col_fwd, h),
-            |s, (b, out)| {
-                let c0 = b * BLOCK;
-                for (ci, col) in out.chunks_mut(h).enumerate() {
-                    // IFFT(z) = conj(FFT(conj z)).
-                    let src = &spec[(c0 + ci) * h..(c0 + ci + 1) * h];
-                    for (k, v) in src.iter().enumerate() {
-                        s.re[ci * h + k] = v.re;
-                        s.im[ci * h + k] = -v.im;
-                    }
-                    s.complex_fft(&self.col_fwd, ci, col, true);
-                }
-            },
+        let mut cols = spec.to_vec();
+        cols.par_chunks_mut(h * BLOCK).for_each_init(
+            || vec![C32::new(0.0, 0.0); self.col_inv.get_inplace_scratch_len()],
+            |scratch, block| self.col_inv.process_with_scratch(block, scratch),
         );
         let mut out = vec![0.0f32; h * w];
         out.par_chunks_mut(w * BLOCK).enumerate().for_each_init(
@@ -190,43 +179,29 @@ impl Fft2 {
         kh: usize,
         k: impl Fn(usize, usize) -> f64,
     ) -> Vec<C32> {
-        let (plane, _) = self.kernel_plane(kw, kh, k);
-        self.forward(&plane)
-    }
-
-    /// The kernel placed as in [`Fft2::kernel_spectrum`], and the plane rows it occupies.
-    fn kernel_plane(
-        &self,
-        kw: usize,
-        kh: usize,
-        k: impl Fn(usize, usize) -> f64,
-    ) -> (Vec<f32>, Vec<usize>) {
         let (h, w) = (self.height, self.width);
         let mut plane = vec![0.0f32; h * w];
         let (cx, cy) = (kw / 2, kh / 2);
-        let mut used = Vec::with_capacity(kh);
         for y in 0..kh {
             let py = (y + h - cy) % h;
-            used.push(py);
             for x in 0..kw {
                 let px = (x + w - cx) % w;
                 plane[py * w + px] += k(x, y) as f32;
             }
         }
-        used.sort_unstable();
-        used.dedup();
-        (plane, used)
+        self.forward(&plane)
     }
 
     /// [`Fft2::kernel_spectrum`], faster for kernels of few rows (equal up to float rounding).
     ///
     /// Only the kernel's rows of the plane are non-zero, so after their row transforms each
-    /// column's transform is a short sum, `K[k] = Σ_j R_j · e^{−2πi k y_j / h}`, evaluated
-    /// directly (vectorised across columns) instead of by full column FFTs; that makes the
-    /// kernel spectrum a small fraction of the cost of an image transform. Kernels with many
-    /// rows relative to the height take the plain 2-D transform. The non-blind solvers use it;
-    /// the blind estimator keeps [`Fft2::kernel_spectrum`], whose coarse-to-fine search is
-    /// chaotic enough for rounding differences to change which kernel it settles on.
+    /// column's transform is a short sum, `K[k] = Σ_j R_j · e^{−2πi k y_j / h}`. Per kernel row
+    /// the factors `e^{−2πi k y_j / h}` form one table over `k`, so each spectrum column is a few
+    /// complex scaled additions of those tables — contiguous, vectorisable, and no image-sized
+    /// plane is ever allocated. Kernels with many rows relative to the height take the plain
+    /// 2-D transform. The non-blind solvers use it; the blind estimator keeps
+    /// [`Fft2::kernel_spectrum`], whose coarse-to-fine search is chaotic enough for rounding
+    /// differences to change which kernel it settles on.
     pub(super) fn kernel_spectrum_direct(
         &self,
         kw: usize,
@@ -234,45 +209,66 @@ impl Fft2 {
         k: impl Fn(usize, usize) -> f64,
     ) -> Vec<C32> {
         let (h, w, wc) = (self.height, self.width, self.spec_width());
-        let (plane, used) = self.kernel_plane(kw, kh, k);
-        // A direct column sum costs one vectorised complex multiply-add per row and bin; the
-        // column FFTs about `5 log₂ h` flops per bin plus the gathers and the recombination.
-        if used.len() > 2 * h.max(2).ilog2() as usize {
-            return self.forward(&plane);
+        // A direct column sum costs one complex multiply-add per kernel row and bin; the column
+        // FFTs about `5 log₂ h` flops per bin plus the gathers and the recombination.
+        if kh > 2 * h.max(2).ilog2() as usize || kh > h || kw > w {
+            return self.kernel_spectrum(kw, kh, k);
         }
-        let rows: Vec<(usize, Vec<C32>)> = used
-            .iter()
-            .map(|&py| {
-                let mut buf = plane[py * w..(py + 1) * w].to_vec();
+        let (cx, cy) = (kw / 2, kh / 2);
+        let tau = std::f64::consts::TAU;
+        // Per non-zero kernel row: its row spectrum (split into re / im) and twiddle table.
+        struct Row {
+            re: Vec<f32>,
+            im: Vec<f32>,
+            tw_re: Vec<f32>,
+            tw_im: Vec<f32>,
+        }
+        let rows: Vec<Row> = (0..kh)
+            .filter_map(|y| {
+                let mut buf = vec![0.0f32; w];
+                for x in 0..kw {
+                    buf[(x + w - cx) % w] += k(x, y) as f32;
+                }
+                if buf.iter().all(|&v| v == 0.0) {
+                    return None;
+                }
                 let mut out = self.row_fwd.make_output_vec();
                 let _ = self.row_fwd.process(&mut buf, &mut out);
-                (py, out)
-            })
-            .collect();
-        let tau = std::f64::consts::TAU;
-        let twiddle: Vec<C32> = (0..h)
-            .map(|m| {
-                let a = -tau * m as f64 / h as f64;
-                C32::new(a.cos() as f32, a.sin() as f32)
+                let py = (y + h - cy) % h;
+                let (tw_re, tw_im) = (0..h)
+                    .map(|m| {
+                        let a = -tau * ((m * py) % h) as f64 / h as f64;
+                        (a.cos() as f32, a.sin() as f32)
+                    })
+                    .unzip();
+                Some(Row {
+                    re: out.iter().map(|c| c.re).collect(),
+                    im: out.iter().map(|c| c.im).collect(),
+                    tw_re,
+                    tw_im,
+                })
             })
             .collect();
         let mut spec = vec![C32::new(0.0, 0.0); h * wc];
-        spec.par_chunks_mut(h * BLOCK).enumerate().for_each_init(
-            || vec![C32::new(0.0, 0.0); BLOCK],
-            |acc, (b, out)| {
-                let (c0, nc) = (b * BLOCK, out.len() / h);
-                for kk in 0..h {
-                    let acc = &mut acc[..nc];
-                    acc.fill(C32::new(0.0, 0.0));
-                    for (py, r) in &rows {
-                        let t = twiddle[(kk * py) % h];
-                        for (a, v) in acc.iter_mut().zip(&r[c0..c0 + nc]) {
-                            *a += t * v;
-                        }
+        spec.par_chunks_mut(h).enumerate().for_each_init(
+            || (vec![0.0f32; h], vec![0.0f32; h]),
+            |(acc_re, acc_im), (c, out)| {
+                acc_re.fill(0.0);
+                acc_im.fill(0.0);
+                for r in &rows {
+                    let (a, b) = (r.re[c], r.im[c]);
+                    for (((ar, ai), &tr), &ti) in acc_re
+                        .iter_mut()
+                        .zip(acc_im.iter_mut())
+                        .zip(&r.tw_re)
+                        .zip(&r.tw_im)
+                    {
+                        *ar += a * tr - b * ti;
+                        *ai += a * ti + b * tr;
                     }
-                    for (ci, a) in acc.iter().enumerate() {
-                        out[ci * h + kk] = *a;
-                    }
+                }
+                for ((o, &re), &im) in out.iter_mut().zip(acc_re.iter()).zip(acc_im.iter()) {
+                    *o = C32::new(re, im);
                 }
             },
         );
@@ -283,55 +279,3 @@ impl Fft2 {
 /// Columns (rows) handled together by one task of the column (row) pass: enough for every row
 /// (column) of the gather to read whole cache lines, few enough for the block to stay in L2.
 const BLOCK: usize = 16;
-
-/// Per-thread buffers for the complex transforms of a block of [`BLOCK`] columns.
-struct ColScratch {
-    /// Real parts, column `ci` at `ci * h..(ci + 1) * h`.
-    re: Vec<f32>,
-    /// Imaginary parts, same layout.
-    im: Vec<f32>,
-    a: Vec<C32>,
-    b: Vec<C32>,
-    scratch: Vec<C32>,
-}
-
-impl ColScratch {
-    fn new(plan: &Arc<dyn RealToComplex<f32>>, h: usize) -> Self {
-        Self {
-            re: vec![0.0; h * BLOCK],
-            im: vec![0.0; h * BLOCK],
-            a: plan.make_output_vec(),
-            b: plan.make_output_vec(),
-            scratch: plan.make_scratch_vec(),
-        }
-    }
-
-    /// `out = FFT(re + i·im)` of block column `ci`, or its conjugate when `conj_out` (for the
-    /// inverse).
-    fn complex_fft(
-        &mut self,
-        plan: &Arc<dyn RealToComplex<f32>>,
-        ci: usize,
-        out: &mut [C32],
-        conj_out: bool,
-    ) {
-        let h = out.len();
-        let (re, im) = (
-            &mut self.re[ci * h..(ci + 1) * h],
-            &mut self.im[ci * h..(ci + 1) * h],
-        );
-        let _ = plan.process_with_scratch(re, &mut self.a, &mut self.scratch);
-        let _ = plan.process_with_scratch(im, &mut self.b, &mut self.scratch);
-        let half = h / 2;
-        let sign = if conj_out { -1.0 } else { 1.0 };
-        // a + i b, with a, b extended past h/2 by Hermitian symmetry.
-        for (k, o) in out.iter_mut().enumerate().take(half + 1) {
-            let (a, b) = (self.a[k], self.b[k]);
-            *o = C32::new(a.re - b.im, sign * (a.im + b.re));
-        }
-        for (k, o) in out.iter_mut().enumerate().skip(half + 1) {
-            let (a, b) = (self.a[h - k].conj(), self.b[h - k].conj());
-            *o = C32::new(a.re - b.im, sign * (a.im + b.re));
-        }
-    }
-}

@@ -117,11 +117,7 @@ pub fn tv_deconv(
         params.iterations,
         progress,
     )?;
-    let data = layout
-        .crop(&out)
-        .into_iter()
-        .map(|v| v.clamp(0.0, 1.0))
-        .collect();
+    let data = layout.crop_map(&out, |v| v.clamp(0.0, 1.0));
     Plane::new(img.width, img.height, data)
 }
 

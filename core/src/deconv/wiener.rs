@@ -15,7 +15,8 @@ use crate::error::{CoreError, CoreResult};
 /// Immerkær's mean absolute value keeps the remaining edges from inflating the estimate.
 /// Returns 0 for images smaller than 3×3.
 ///
-/// The median is exact but found without storing or sorting the responses: a histogram of the
+/// Images above [`STAT_SAMPLES`] pixels are sampled on every k-th row. The median (of the
+/// responses scanned) is exact but found without storing or sorting them: a histogram of the
 /// top 12 bits of their `f32` patterns (which order like the values, all being ≥ 0; 4096 counters
 /// stay in L1) locates the bucket holding the median, and only that bucket's values (an octave
 /// split in eight) are collected and selected from.
@@ -24,13 +25,14 @@ pub fn estimate_noise_sigma(img: &Plane) -> f64 {
     if w < 3 || h < 3 {
         return 0.0;
     }
+    let rows = sample_rows(1, h - 1, w);
     const BUCKETS: usize = 1 << 12;
     let bucket = |v: f32| (v.to_bits() >> 20) as usize;
-    let hist = (1..h - 1)
-        .into_par_iter()
+    let hist = rows
+        .par_iter()
         .fold(
             || vec![0u32; BUCKETS],
-            |mut hist, y| {
+            |mut hist, &y| {
                 for v in laplacian_row(img, y) {
                     hist[bucket(v)] += 1;
                 }
@@ -44,7 +46,7 @@ pub fn estimate_noise_sigma(img: &Plane) -> f64 {
                 a
             },
         );
-    let mid = (w - 2) * (h - 2) / 2;
+    let mid = (w - 2) * rows.len() / 2;
     let mut below = 0usize;
     let mut target = 0usize;
     for (b, &n) in hist.iter().enumerate() {
@@ -54,13 +56,27 @@ pub fn estimate_noise_sigma(img: &Plane) -> f64 {
         }
         below += n as usize;
     }
-    let mut r: Vec<f32> = (1..h - 1)
-        .into_par_iter()
-        .flat_map_iter(|y| laplacian_row(img, y).filter(|&v| bucket(v) == target))
+    let mut r: Vec<f32> = rows
+        .par_iter()
+        .flat_map_iter(|&y| laplacian_row(img, y).filter(|&v| bucket(v) == target))
         .collect();
     let (_, med, _) = r.select_nth_unstable_by(mid - below, f32::total_cmp);
     // MAD of a normal variable is 0.6745 σ; the mask has ‖M‖₂ = 6.
     f64::from(*med) / 0.674_489_75 / 6.0
+}
+
+/// Pixel count above which the image statistics ([`estimate_noise_sigma`], the gradient power
+/// of the noise-to-signal estimate) are taken on every k-th row only: half a million samples
+/// put the median's relative standard error near 0.2 %, and a 1080p frame then costs a quarter
+/// of the scan.
+const STAT_SAMPLES: usize = 1 << 19;
+
+/// Rows `first..end` of an image `width` wide, every k-th one so that about [`STAT_SAMPLES`]
+/// pixels are covered (all of them for smaller images).
+fn sample_rows(first: usize, end: usize, width: usize) -> Vec<usize> {
+    let n = end.saturating_sub(first);
+    let step = (n * width).div_ceil(STAT_SAMPLES).max(1);
+    (first..end).step_by(step).collect()
 }
 
 /// Absolute responses of Immerkær's mask along interior row `y` (`1 ≤ y < height − 1`).
@@ -168,11 +184,7 @@ pub fn wiener(img: &Plane, psf: &Psf, nsr: Option<f64>) -> CoreResult<Plane> {
             }
         });
     let out = fft.inverse(&spec);
-    let data = layout
-        .crop(&out)
-        .into_iter()
-        .map(|v| v.clamp(0.0, 1.0))
-        .collect();
+    let data = layout.crop_map(&out, |v| v.clamp(0.0, 1.0));
     Plane::new(img.width, img.height, data)
 }
 
@@ -182,9 +194,10 @@ fn estimate_nsr(img: &Plane, psf: &Psf) -> f64 {
     let sigma = estimate_noise_sigma(img).max(0.5 / 255.0);
     let (w, h) = (img.width, img.height);
     // Mean squared forward difference over pixels with both neighbours, summed per row in f64.
-    let g2: f64 = (0..h.saturating_sub(1))
-        .into_par_iter()
-        .map(|y| {
+    let rows = sample_rows(0, h.saturating_sub(1), w);
+    let g2: f64 = rows
+        .par_iter()
+        .map(|&y| {
             let (row, next) = (
                 &img.data[y * w..(y + 1) * w],
                 &img.data[(y + 1) * w..(y + 2) * w],
@@ -199,7 +212,7 @@ fn estimate_nsr(img: &Plane, psf: &Psf) -> f64 {
                 .sum::<f64>()
         })
         .sum();
-    let n = h.saturating_sub(1) * w.saturating_sub(1);
+    let n = rows.len() * w.saturating_sub(1);
     let g2 = if n > 0 { g2 / n as f64 } else { 0.0 };
     let k2: f64 = psf.data.iter().map(|v| v * v).sum();
     let c = ((g2 - 4.0 * sigma * sigma) / k2).max(1e-6);
