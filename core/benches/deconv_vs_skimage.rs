@@ -7,7 +7,9 @@
 //! `CALIPER_BENCH_NO_PEER=1` (skip the peer), `CALIPER_BENCH_IMAGES` (comma-separated file stems,
 //! default `camera,astronaut,coffee,chelsea`), `CALIPER_BENCH_TIMING_ONLY=1` (only the 1920×1080
 //! timings, skipping the quality set), `CALIPER_BENCH_ONLY` (comma-separated subset of
-//! `wiener,rl,tv,blind,timing`; the others print NaN). The benchmark set is built deterministically in
+//! `wiener,rl,tv,blind,timing`; the others print NaN), `CALIPER_BENCH_CROP=native` (centre
+//! crops at the photos' own resolution instead of the photo shrunk to the crop size). The
+//! benchmark set is built deterministically in
 //! this run; the recipe is in `core/benches/deconv_set.md`.
 
 use std::path::{Path, PathBuf};
@@ -186,10 +188,21 @@ struct Case {
 
 /// Sharp crop: shorter side scaled to SIDE + 2·CONTEXT, centre square; blurred: 'valid'
 /// convolution of that square, centre SIDE×SIDE, + N(0, σ²), clipped and quantised to 8 bits.
-fn make_case(name: &str, img: &(usize, usize, Vec<f64>), psf: &Psf, seed: u64) -> Case {
+fn make_case(
+    name: &str,
+    img: &(usize, usize, Vec<f64>),
+    psf: &Psf,
+    seed: u64,
+    native: bool,
+) -> Case {
     let (w, h, data) = img;
     let big = SIDE + 2 * CONTEXT;
-    let f = big as f64 / (*w).min(*h) as f64;
+    // Native: a centre crop at the photo's own resolution (Levin et al.'s 255×255 crops).
+    let f = if native {
+        1.0
+    } else {
+        big as f64 / (*w).min(*h) as f64
+    };
     let (nw, nh) = (
         ((*w as f64 * f).round() as usize).max(big),
         ((*h as f64 * f).round() as usize).max(big),
@@ -299,6 +312,7 @@ fn main() {
         only.as_deref()
             .is_none_or(|o| o.split(',').any(|x| x.trim() == m))
     };
+    let native = std::env::var("CALIPER_BENCH_CROP").as_deref() == Ok("native");
     let ks = kernels();
     let mut cases = Vec::new();
     for (ii, stem) in stems.split(',').enumerate() {
@@ -309,7 +323,13 @@ fn main() {
         };
         for (ki, (kname, psf)) in ks.iter().enumerate() {
             let seed = 1000 + (ii * 100 + ki) as u64;
-            cases.push(make_case(&format!("{stem}/{kname}"), &img, psf, seed));
+            cases.push(make_case(
+                &format!("{stem}/{kname}"),
+                &img,
+                psf,
+                seed,
+                native,
+            ));
         }
     }
     if cases.is_empty() {
@@ -317,10 +337,15 @@ fn main() {
         return;
     }
     println!(
-        "{} cases ({} images × {} kernels), {SIDE}×{SIDE}, noise σ {NOISE}, peer: {}",
+        "{} cases ({} images × {} kernels), {SIDE}×{SIDE} {}, noise σ {NOISE}, peer: {}",
         cases.len(),
         cases.len() / ks.len(),
         ks.len(),
+        if native {
+            "native-resolution crops"
+        } else {
+            "downscaled photos"
+        },
         if use_peer { "yes" } else { "no" }
     );
     println!(

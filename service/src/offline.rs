@@ -65,8 +65,25 @@ pub struct DeblurArgs {
     /// A `caliper.camera/v1` document whose intrinsics complete `--gyro`.
     #[arg(long)]
     pub camera: Option<PathBuf>,
+    /// With `--gyro`: restore on a grid of NXxNY cells, each with the kernel drawn at its
+    /// centre (blur that varies across the frame), e.g. `8x8`.
+    #[arg(long, value_parser = parse_grid)]
+    pub gyro_grid: Option<[usize; 2]>,
     #[command(flatten)]
     pub common: CommonArgs,
+}
+
+/// `NXxNY` → `[nx, ny]`.
+fn parse_grid(s: &str) -> Result<[usize; 2], String> {
+    let (a, b) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("{s:?}: expected NXxNY, e.g. 8x8"))?;
+    let n = |v: &str| {
+        v.trim()
+            .parse::<usize>()
+            .map_err(|_| format!("{s:?}: {v:?} is not a cell count"))
+    };
+    Ok([n(a)?, n(b)?])
 }
 
 /// Flags of `caliper run vignetting` and `photometric-online`.
@@ -426,6 +443,7 @@ fn run_deblur(a: &DeblurArgs) -> Result<String, RunError> {
         ("nsr", a.nsr.map(|v| json!(v))),
         ("tv_lambda", a.tv_lambda.map(|v| json!(v))),
         ("kernel_size", a.kernel_size.map(|v| json!(v))),
+        ("gyro_grid", a.gyro_grid.map(|v| json!(v))),
     ] {
         if let Some(v) = v {
             params[key] = v;

@@ -7,10 +7,11 @@ use serde::{Deserialize, Serialize};
 use super::blind::{BlindParams, estimate_kernel};
 use super::blind_rl::blind_richardson_lucy;
 use super::color::{merge_image, split_image};
-use super::gyro::{GyroPsfParams, gyro_psf};
+use super::gyro::{GyroPsfParams, gyro_psf, gyro_psf_grid};
 use super::psf::MAX_PSF_SIZE;
 use super::rl::MAX_RL_ITERATIONS;
 use super::tv::{MAX_TV_ITERATIONS, TvParams, tv_deconv};
+use super::varying::deconv_varying;
 use super::{Plane, Psf, richardson_lucy, wiener};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
@@ -55,6 +56,11 @@ pub struct DeblurParams {
     pub kernel_size: Option<usize>,
     /// Gyro trace, exposure and intrinsics for `gyro`.
     pub gyro: Option<GyroPsfParams>,
+    /// For `gyro`: `[nx, ny]` cells, each restored with the kernel drawn at its centre and
+    /// blended smoothly (blur that varies across the frame: rotation about the optical axis,
+    /// wide lenses). Default: one kernel, drawn at the principal point. The cells must be small
+    /// enough for the kernel to be nearly constant over each; 1–32 per axis.
+    pub gyro_grid: Option<[usize; 2]>,
 }
 
 impl Default for DeblurParams {
@@ -67,6 +73,7 @@ impl Default for DeblurParams {
             tv_lambda: None,
             kernel_size: None,
             gyro: None,
+            gyro_grid: None,
         }
     }
 }
@@ -112,6 +119,17 @@ impl DeblurParams {
             }
             (Some(g), true) => g.validate()?,
             (None, false) => {}
+        }
+        if let Some([nx, ny]) = self.gyro_grid {
+            if self.method != Gyro {
+                return Err(CoreError::param("gyro_grid", "only used by method gyro"));
+            }
+            if !(1..=MAX_GYRO_GRID).contains(&nx) || !(1..=MAX_GYRO_GRID).contains(&ny) {
+                return Err(CoreError::param(
+                    "gyro_grid",
+                    format!("between 1 and {MAX_GYRO_GRID} cells per axis"),
+                ));
+            }
         }
         if let Some(n) = self.iterations {
             let max = if matches!(self.method, Tv | Blind | Gyro) {
@@ -166,6 +184,9 @@ impl DeblurParams {
         }
     }
 }
+
+/// Most cells per axis of [`DeblurParams::gyro_grid`].
+pub const MAX_GYRO_GRID: usize = 32;
 
 /// Result of [`deblur_image`].
 #[derive(Debug, Clone)]
@@ -235,10 +256,22 @@ pub fn deblur_image(
             }
         }
     };
+    // Spatially varying gyro blur: the kernels of the grid, restored tile by tile.
+    let grid = match (params.method, params.gyro_grid, &params.gyro) {
+        (DeblurMethod::Gyro, Some([nx, ny]), Some(g)) => {
+            Some((gyro_psf_grid(g, w, h, nx, ny)?, nx, ny))
+        }
+        _ => None,
+    };
     let planes = split
         .color
         .par_iter()
-        .map(run)
+        .map(|p| match &grid {
+            Some((kernels, nx, ny)) => deconv_varying(p, kernels, *nx, *ny, |tile, k| {
+                tv_deconv(tile, k, &tv, progress)
+            }),
+            None => run(p),
+        })
         .collect::<CoreResult<Vec<Plane>>>()?;
     Ok(DeblurOutput {
         image: merge_image(&split, &planes)?,

@@ -13,7 +13,8 @@
 //!   result).
 //! * [`blind_deconv`] / [`estimate_kernel`]: coarse-to-fine L0-gradient kernel estimation
 //!   (Pan et al. 2014/2017), then TV; [`blind_richardson_lucy`] as MATLAB `deconvblind`.
-//! * [`gyro_psf`]: the kernel drawn from a gyro trace and the pinhole intrinsics (Joshi et al. 2010).
+//! * [`gyro_psf`]: the kernel drawn from a gyro trace and the pinhole intrinsics (Joshi et al. 2010);
+//!   [`gyro_psf_grid`] + [`deconv_varying`] for blur that varies across the frame.
 //! * [`deblur_image`]: one entry point for 8/16-bit grey/RGB(A) images, any of the above.
 //! * [`psnr`], [`ssim`], [`error_ratio`]: quality against a reference.
 
@@ -30,6 +31,7 @@ mod psf;
 mod resample;
 mod rl;
 mod tv;
+mod varying;
 mod wiener;
 
 #[cfg(test)]
@@ -41,13 +43,14 @@ pub use blind::{BlindOutput, BlindParams, blind_deconv, estimate_kernel};
 pub use blind_rl::blind_richardson_lucy;
 pub use boundary::{PadLayout, reflect};
 pub use color::{ChannelLayout, SampleDepth, SplitImage, merge_image, split_image};
-pub use deblur::{DeblurMethod, DeblurOutput, DeblurParams, deblur_image, psf_png};
+pub use deblur::{DeblurMethod, DeblurOutput, DeblurParams, MAX_GYRO_GRID, deblur_image, psf_png};
 pub use fft::{Fft2, fast_len, is_smooth};
 pub use gyro::{GyroPsfParams, GyroSample, gyro_psf, gyro_psf_at, gyro_psf_grid};
 pub use metrics::{error_ratio, error_ratio_aligned, psnr, ssim};
 pub use psf::{MAX_PSF_SIZE, Psf};
 pub use rl::{MAX_RL_ITERATIONS, richardson_lucy};
 pub use tv::{MAX_TV_ITERATIONS, TvParams, auto_tv_lambda, tv_deconv};
+pub use varying::deconv_varying;
 pub use wiener::{estimate_noise_sigma, wiener};
 
 use crate::error::{CoreError, CoreResult};
