@@ -134,8 +134,9 @@ const LEVEL_RATIO: f64 = std::f64::consts::FRAC_1_SQRT_2;
 ///   level upsampled by √2) avoids that but leaves every kernel about a pixel too thick, which
 ///   alone puts many error ratios near 3; with the stronger settings the finest level thins the
 ///   path (benchmark median 2.7 → 2.0, failures 11/32 → 0/32; on four images outside the set,
-///   `rocket`, `clock`, `coins`, `brick` with the same kernels and noise, 10/32 → 14/32: the
-///   brick texture and the smooth clock face still defeat the edge-based latent).
+///   `rocket`, `clock`, `coins`, `brick` with the same kernels and noise, 10/32 → 14/32, 13/32
+///   after the FFT column pass changed rounding: the brick texture, the smooth clock face and
+///   the rocket's sky still defeat the edge-based latent — there the estimate grows into a blob).
 ///
 /// Each level works on the image mirrored and tapered into a periodic FFT domain (the role of
 /// Liu & Jia's boundary wrapping in the authors' code). Levin et al., "Understanding and
