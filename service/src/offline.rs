@@ -59,9 +59,17 @@ pub struct DeblurArgs {
     #[arg(long)]
     pub kernel_size: Option<usize>,
     /// Gyro trace for `--method gyro`: JSON with `samples` [{t, w: [x, y, z]}],
-    /// `exposure_start_s`, `exposure_s` and (unless `--camera` gives them) fx, fy, cx, cy.
+    /// `exposure_start_s`, `exposure_s` and (unless `--camera` gives them) fx, fy, cx, cy; or an
+    /// IMU log (`.csv` / `.csv.gz`, the `imu-noise` formats: ns timestamps, gyro in rad/s),
+    /// which then needs `--exposure-start-ns`, `--exposure-ms` and `--camera`.
     #[arg(long)]
     pub gyro: Option<PathBuf>,
+    /// With an IMU log as `--gyro`: start of the exposure on the log's clock, ns.
+    #[arg(long)]
+    pub exposure_start_ns: Option<i64>,
+    /// With an IMU log as `--gyro`: exposure time, ms.
+    #[arg(long)]
+    pub exposure_ms: Option<f64>,
     /// A `caliper.camera/v1` document whose intrinsics complete `--gyro`.
     #[arg(long)]
     pub camera: Option<PathBuf>,
@@ -450,9 +458,24 @@ fn run_deblur(a: &DeblurArgs) -> Result<String, RunError> {
         }
     }
     if let Some(path) = &a.gyro {
-        let text = std::fs::read_to_string(path)?;
-        let mut g: Value = serde_json::from_str(&text)
-            .map_err(|e| RunError::Input(format!("{} is not JSON: {e}", path.display())))?;
+        let name = path.to_string_lossy().to_ascii_lowercase();
+        let mut g: Value = if name.ends_with(".csv") || name.ends_with(".csv.gz") {
+            if a.camera.is_none() {
+                return Err(RunError::Input(
+                    "an IMU log as --gyro needs --camera for the intrinsics".into(),
+                ));
+            }
+            let (Some(start), Some(ms)) = (a.exposure_start_ns, a.exposure_ms) else {
+                return Err(RunError::Input(
+                    "an IMU log as --gyro needs --exposure-start-ns and --exposure-ms".into(),
+                ));
+            };
+            gyro_from_log(path, start, ms * 1e-3)?
+        } else {
+            let text = std::fs::read_to_string(path)?;
+            serde_json::from_str(&text)
+                .map_err(|e| RunError::Input(format!("{} is not JSON: {e}", path.display())))?
+        };
         if let Some(cam) = &a.camera {
             let text = std::fs::read_to_string(cam)?;
             let doc: Value = serde_json::from_str(&text)
@@ -476,6 +499,46 @@ fn run_deblur(a: &DeblurArgs) -> Result<String, RunError> {
         params["gyro"] = g;
     }
     run_kind("deblur", params, &a.common)
+}
+
+/// The gyro samples of an IMU log over one exposure (`start_ns` on the log's clock, plus
+/// `exposure_s`), with one sample either side so the trace spans it, as a gyro trace whose
+/// times count from the exposure start.
+fn gyro_from_log(path: &Path, start_ns: i64, exposure_s: f64) -> Result<Value, RunError> {
+    use caliper_core::imu::{ImuCsvParams, read_imu_log};
+    if !(exposure_s.is_finite() && exposure_s > 0.0) {
+        return Err(RunError::Input("--exposure-ms must be > 0".into()));
+    }
+    let mut f = std::fs::File::open(path)?;
+    let mut head = [0u8; 2];
+    let n = std::io::Read::read(&mut f, &mut head)?;
+    let f = std::fs::File::open(path)?;
+    let reader: Box<dyn std::io::BufRead> = if n == 2 && head == [0x1f, 0x8b] {
+        Box::new(std::io::BufReader::new(flate2::read::MultiGzDecoder::new(
+            f,
+        )))
+    } else {
+        Box::new(std::io::BufReader::new(f))
+    };
+    let log = read_imu_log(reader, &ImuCsvParams::default(), &caliper_core::NoProgress)
+        .map_err(|e| RunError::Input(format!("{}: {e}", path.display())))?;
+    let t = log.times_s();
+    let a = (start_ns - log.t0_ns()) as f64 * 1e-9;
+    let b = a + exposure_s;
+    let (t_first, t_last) = (t[0], t[t.len() - 1]);
+    if a < t_first || b > t_last {
+        return Err(RunError::Input(format!(
+            "{}: the log covers {t_first:.6}–{t_last:.6} s from its first sample, the exposure \
+             needs {a:.6}–{b:.6} s",
+            path.display()
+        )));
+    }
+    let first = t.partition_point(|&x| x < a).saturating_sub(1);
+    let end = (t.partition_point(|&x| x <= b) + 1).min(t.len());
+    let samples: Vec<Value> = (first..end)
+        .map(|i| json!({"t": t[i] - a, "w": [log.value(0, i), log.value(1, i), log.value(2, i)]}))
+        .collect();
+    Ok(json!({"samples": samples, "exposure_start_s": 0.0, "exposure_s": exposure_s}))
 }
 
 fn run_imu(kind: &str, a: &ImuArgs) -> Result<String, RunError> {

@@ -311,3 +311,71 @@ async fn blind_and_gyro_deblur_return_their_kernels() {
     assert_eq!((img.width(), img.height()), (w, h));
     s.stop().await;
 }
+
+#[test]
+fn offline_gyro_deblur_reads_an_imu_log() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let input = dir.path().join("frame.png");
+    std::fs::write(&input, png(&box_blur(&sharp_image(96, 72), 3))).expect("write");
+    // One second of a 200 Hz EuRoC log turning at 0.5 rad/s about the camera's y axis.
+    let t0: i64 = 1_403_636_579_758_555_392;
+    let mut csv = String::from(
+        "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],\
+         a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]\n",
+    );
+    for i in 0..200 {
+        csv.push_str(&format!(
+            "{},0.0,0.5,0.0,0.0,0.0,9.81\n",
+            t0 + i * 5_000_000
+        ));
+    }
+    let log = dir.path().join("imu0.csv");
+    std::fs::write(&log, csv).expect("write");
+    let cam = dir.path().join("cam.json");
+    std::fs::write(
+        &cam,
+        r#"{"parameters": {"camera": {"fx": 500.0, "fy": 500.0, "cx": 48.0, "cy": 36.0}}}"#,
+    )
+    .expect("write");
+    let out = dir.path().join("out");
+    let run = |start: i64| {
+        std::process::Command::new(caliper_bin())
+            .args(["run", "deblur", "--method", "gyro", "--gyro"])
+            .arg(&log)
+            .arg("--camera")
+            .arg(&cam)
+            .args([
+                "--exposure-start-ns",
+                &start.to_string(),
+                "--exposure-ms",
+                "20",
+            ])
+            .arg("--out")
+            .arg(&out)
+            .arg(&input)
+            .output()
+            .expect("run caliper")
+    };
+    let o = run(t0 + 300_000_000);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // 0.5 rad/s for 20 ms at fx = 500 px: a horizontal streak of about 5 px.
+    let text = std::fs::read_to_string(out.join("frame.kernel.json")).expect("kernel");
+    let k = Psf::parse_json(&text).expect("a valid kernel");
+    let cols: Vec<usize> = (0..k.width)
+        .filter(|&x| (0..k.height).any(|y| k.at(x, y) > 1e-3))
+        .collect();
+    let rows = (0..k.height)
+        .filter(|&y| (0..k.width).any(|x| k.at(x, y) > 1e-3))
+        .count();
+    let extent_x = cols.last().unwrap_or(&0) - cols.first().unwrap_or(&0);
+    assert!((4..=7).contains(&extent_x), "streak {extent_x} px, {k:?}");
+    assert!(rows <= 2, "streak {rows} rows tall");
+    // An exposure the log does not cover: a clear error naming the log.
+    let o = run(t0 + 990_000_000);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("imu0.csv") && err.contains("exposure"),
+        "{err}"
+    );
+}
