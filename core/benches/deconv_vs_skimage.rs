@@ -18,8 +18,8 @@ use std::time::Instant;
 
 use caliper_core::NoProgress;
 use caliper_core::deconv::{
-    BlindParams, Plane, Psf, TvParams, blind_deconv, error_ratio_aligned, psnr, richardson_lucy,
-    tv_deconv, wiener,
+    BlindParams, Plane, Psf, TvParams, blind_deconv, error_ratio_aligned, psnr, resize,
+    richardson_lucy, tv_deconv, wiener,
 };
 
 mod common;
@@ -52,43 +52,6 @@ impl Rng {
         let (a, b) = (self.uniform(), self.uniform());
         (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
     }
-}
-
-/// Triangle-filter resize (antialiased when shrinking) of a row-major f64 image.
-fn resize(data: &[f64], w: usize, h: usize, nw: usize, nh: usize) -> Vec<f64> {
-    fn taps(n: usize, m: usize) -> Vec<Vec<(usize, f64)>> {
-        let f = m as f64 / n as f64;
-        let sup = if f < 1.0 { 1.0 / f } else { 1.0 };
-        (0..m)
-            .map(|o| {
-                let s = (o as f64 + 0.5) / f - 0.5;
-                let mut t: Vec<(usize, f64)> = ((s - sup).floor() as isize
-                    ..=(s + sup).ceil() as isize)
-                    .filter_map(|i| {
-                        let wgt = 1.0 - ((i as f64 - s) / sup).abs();
-                        (wgt > 0.0).then(|| (i.clamp(0, n as isize - 1) as usize, wgt))
-                    })
-                    .collect();
-                let sum: f64 = t.iter().map(|x| x.1).sum();
-                t.iter_mut().for_each(|x| x.1 /= sum);
-                t
-            })
-            .collect()
-    }
-    let (tx, ty) = (taps(w, nw), taps(h, nh));
-    let mut rows = vec![0.0; h * nw];
-    for y in 0..h {
-        for (x, t) in tx.iter().enumerate() {
-            rows[y * nw + x] = t.iter().map(|&(i, k)| k * data[y * w + i]).sum();
-        }
-    }
-    let mut out = vec![0.0; nh * nw];
-    for (y, t) in ty.iter().enumerate() {
-        for x in 0..nw {
-            out[y * nw + x] = t.iter().map(|&(i, k)| k * rows[i * nw + x]).sum();
-        }
-    }
-    out
 }
 
 /// Grey image in [0, 1] (Rec. 601 luma for colour).

@@ -60,24 +60,22 @@ pub fn blind_richardson_lucy(
     for it in 0..iterations {
         progress.check()?;
         let kspec = fft.kernel_spectrum(ks, ks, |a, b| k[b * ks + a]);
+        // `y / (k ⊛ x)`, the RL ratio for the current image.
+        let ratio_of = |x: &[f32]| -> Vec<f32> {
+            let kx = convolve(&fft, x, &kspec, false);
+            y.par_iter()
+                .zip(kx.par_iter())
+                .map(|(y, b)| y / b.max(1e-6))
+                .collect()
+        };
         // Image step.
-        let kx = convolve(&fft, &x, &kspec, false);
-        let ratio: Vec<f32> = y
-            .par_iter()
-            .zip(kx.par_iter())
-            .map(|(y, b)| y / b.max(1e-6))
-            .collect();
+        let ratio = ratio_of(&x);
         let back = convolve(&fft, &ratio, &kspec, true);
         x.par_iter_mut()
             .zip(back.par_iter())
             .for_each(|(x, b)| *x = (*x * b.max(0.0)).max(0.0));
         // Kernel step: correlate the ratio with the image, read the kernel window.
-        let kx = convolve(&fft, &x, &kspec, false);
-        let ratio: Vec<f32> = y
-            .par_iter()
-            .zip(kx.par_iter())
-            .map(|(y, b)| y / b.max(1e-6))
-            .collect();
+        let ratio = ratio_of(&x);
         let xs = fft.forward(&x);
         let rs = fft.forward(&ratio);
         let scale = 1.0 / (h * w) as f32;

@@ -48,6 +48,7 @@ pub use fft::{Fft2, fast_len, is_smooth};
 pub use gyro::{GyroPsfParams, GyroSample, gyro_psf, gyro_psf_at, gyro_psf_grid};
 pub use metrics::{error_ratio, error_ratio_aligned, psnr, ssim};
 pub use psf::{MAX_PSF_SIZE, Psf};
+pub use resample::resize;
 pub use rl::{MAX_RL_ITERATIONS, richardson_lucy};
 pub use tv::{MAX_TV_ITERATIONS, TvParams, auto_tv_lambda, tv_deconv};
 pub use varying::deconv_varying;

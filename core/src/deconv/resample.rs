@@ -32,7 +32,7 @@ fn taps(n_in: usize, n_out: usize) -> Vec<Vec<(usize, f64)>> {
 }
 
 /// Resizes a row-major `w × h` array to `nw × nh`.
-pub(super) fn resize(data: &[f64], w: usize, h: usize, nw: usize, nh: usize) -> Vec<f64> {
+pub fn resize(data: &[f64], w: usize, h: usize, nw: usize, nh: usize) -> Vec<f64> {
     let tx = taps(w, nw);
     let ty = taps(h, nh);
     let mut rows = vec![0.0f64; h * nw];

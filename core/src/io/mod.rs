@@ -275,17 +275,25 @@ fn to_gray(img: DynamicImage, format: ImageFormat) -> Vec<u8> {
 ///   decodes to RGB, so we apply the BT.601 formula above to it. The result is within a few
 ///   levels of OpenCV's (chroma upsampling and rounding differ), not bit-identical.
 pub fn decode_gray8(bytes: &[u8], limits: &ImageLimits) -> CoreResult<Gray> {
+    let (img, format) = decode_image(bytes, limits)?;
+    let (width, height) = (img.width(), img.height());
+    let data = to_gray(img, format);
+    Gray::new(width, height, data)
+}
+
+/// Decode PNG, JPEG or TIFF bytes keeping their pixel format (bit depth and channels), with the
+/// header checked against `limits` before any pixel is allocated and truncated JPEGs refused
+/// (see [`decode_gray8`]). Returns the image and its container format.
+pub fn decode_image(bytes: &[u8], limits: &ImageLimits) -> CoreResult<(DynamicImage, ImageFormat)> {
     let (format, decoder) = open_decoder(Cursor::new(bytes), limits)?;
     if format == ImageFormat::Jpeg && !jpeg_has_end_marker(bytes) {
         return Err(CoreError::input(
             "truncated JPEG: the file does not end with an end-of-image marker",
         ));
     }
-    let (width, height) = decoder.dimensions();
     let img =
         DynamicImage::from_decoder(decoder).map_err(|e| image_err("cannot decode image", e))?;
-    let data = to_gray(img, format);
-    Gray::new(width, height, data)
+    Ok((img, format))
 }
 
 /// Whether a JPEG file ends with its EOI marker (FF D9), ignoring trailing zero or whitespace

@@ -42,9 +42,7 @@ pub use online::{OnlineParams, OnlineResult, photometric_online};
 pub use response::{InverseResponse, ResponseModel};
 pub use vignette::VignetteModel;
 
-use std::io::Cursor;
-
-use image::{DynamicImage, ImageReader};
+use image::DynamicImage;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{CoreError, CoreResult};
@@ -111,24 +109,8 @@ impl PhotoImage {
     /// Decode PNG/TIFF/JPEG bytes keeping the bit depth: 16-bit files stay 16-bit, everything
     /// else becomes 8-bit; colour is reduced to luma by the `image` crate (Rec. 709 weights).
     pub fn decode(bytes: &[u8], limits: &ImageLimits) -> CoreResult<Self> {
-        let reader = ImageReader::new(Cursor::new(bytes))
-            .with_guessed_format()
-            .map_err(|e| CoreError::input(format!("cannot read image: {e}")))?;
-        let (w, h) = reader
-            .into_dimensions()
-            .map_err(|e| CoreError::input(format!("cannot read image header: {e}")))?;
-        limits.check(w, h)?;
-        let mut reader = ImageReader::new(Cursor::new(bytes))
-            .with_guessed_format()
-            .map_err(|e| CoreError::input(format!("cannot read image: {e}")))?;
-        let mut lim = image::Limits::default();
-        lim.max_image_width = Some(limits.max_width);
-        lim.max_image_height = Some(limits.max_height);
-        lim.max_alloc = Some(limits.max_alloc_bytes);
-        reader.limits(lim);
-        let img = reader
-            .decode()
-            .map_err(|e| CoreError::input(format!("cannot decode image: {e}")))?;
+        let (img, _) = crate::io::decode_image(bytes, limits)?;
+        let (w, h) = (img.width(), img.height());
         let sixteen = matches!(
             img,
             DynamicImage::ImageLuma16(_)

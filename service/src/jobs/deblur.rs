@@ -11,7 +11,7 @@ use std::io::Cursor;
 use caliper_core::Progress;
 use caliper_core::deconv::{DeblurParams, deblur_image, psf_png};
 use caliper_core::io::ImageLimits;
-use image::{DynamicImage, ImageFormat, ImageReader};
+use image::{DynamicImage, ImageFormat};
 use serde_json::{Value, json};
 
 use super::{
@@ -46,29 +46,8 @@ pub fn decode_keep_format(
     bytes: &[u8],
     name: &str,
 ) -> Result<(DynamicImage, ImageFormat), JobError> {
-    let limits = ImageLimits::default();
-    let reader = ImageReader::new(Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| permanent(format!("{name}: cannot read image: {e}")))?;
-    let format = reader
-        .format()
-        .ok_or_else(|| permanent(format!("{name}: unknown image format")))?;
-    let (w, h) = reader
-        .into_dimensions()
-        .map_err(|e| permanent(format!("{name}: cannot read image header: {e}")))?;
-    limits
-        .check(w, h)
-        .map_err(|e| permanent(format!("{name}: {e}")))?;
-    let mut reader = ImageReader::with_format(Cursor::new(bytes), format);
-    let mut lim = image::Limits::default();
-    lim.max_image_width = Some(limits.max_width);
-    lim.max_image_height = Some(limits.max_height);
-    lim.max_alloc = Some(limits.max_alloc_bytes);
-    reader.limits(lim);
-    let img = reader
-        .decode()
-        .map_err(|e| permanent(format!("{name}: cannot decode image: {e}")))?;
-    Ok((img, format))
+    caliper_core::io::decode_image(bytes, &ImageLimits::default())
+        .map_err(|e| permanent(format!("{name}: {e}")))
 }
 
 /// Encode in `format` (PNG, TIFF or JPEG; JPEG can only hold 8-bit grey/RGB, which is what a
