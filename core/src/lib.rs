@@ -8,11 +8,14 @@ pub mod camera;
 pub mod deconv;
 pub mod error;
 pub mod export;
+#[doc(hidden)]
+pub mod fuzz_harness;
 pub mod imu;
 pub mod io;
 pub mod lie;
 pub mod optim;
 pub mod photometric;
+mod plot_axis;
 pub mod progress;
 pub mod synth;
 pub mod target;

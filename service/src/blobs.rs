@@ -80,8 +80,12 @@ impl Blobs {
             if let Some(parent) = dest.parent() {
                 tokio::fs::create_dir_all(parent).await?;
             }
-            // A rename is atomic: readers see the whole blob or none.
+            // A rename is atomic: readers see the whole blob or none. The content and the
+            // directory entry reach the disk before we return, so the database commit that
+            // follows never refers to a blob a power loss could take away.
+            tokio::fs::File::open(file).await?.sync_all().await?;
             if tokio::fs::rename(file, &dest).await.is_ok() {
+                sync_dir(&dest).await?;
                 return Ok(());
             }
             // Different filesystem or another failure: fall back to copying.
@@ -102,12 +106,31 @@ impl Blobs {
         Ok(())
     }
 
-    /// Store bytes (small artifacts) under their hash; returns the hash.
+    /// Store bytes (small artifacts) under their hash, durably on the local filesystem (as
+    /// [`Blobs::put_file`]); returns the hash.
     pub async fn put_bytes(&self, data: Bytes) -> Result<String, BlobError> {
         let sha = crate::document::sha256_hex(&data);
-        if !self.exists(&sha).await? {
-            self.store.put(&key(&sha), data.into()).await?;
+        if self.exists(&sha).await? {
+            return Ok(sha);
         }
+        if let Some(root) = &self.local_root {
+            let dest = root.join(key(&sha).as_ref());
+            let root = root.clone();
+            tokio::task::spawn_blocking(move || -> std::io::Result<()> {
+                use std::io::Write;
+                let parent = dest.parent().unwrap_or(&root);
+                std::fs::create_dir_all(parent)?;
+                let mut tmp = tempfile::NamedTempFile::new_in(parent)?;
+                tmp.write_all(&data)?;
+                tmp.as_file().sync_all()?;
+                tmp.persist(&dest).map_err(|e| e.error)?;
+                std::fs::File::open(parent)?.sync_all()
+            })
+            .await
+            .map_err(std::io::Error::other)??;
+            return Ok(sha);
+        }
+        self.store.put(&key(&sha), data.into()).await?;
         Ok(sha)
     }
 
@@ -115,6 +138,39 @@ impl Blobs {
     pub async fn get(&self, sha256: &str) -> Result<Bytes, BlobError> {
         match self.store.get(&key(sha256)).await {
             Ok(r) => Ok(r.bytes().await?),
+            Err(object_store::Error::NotFound { .. }) => Err(BlobError::NotFound(sha256.into())),
+            Err(e) => Err(e.into()),
+        }
+    }
+
+    /// A whole blob, for job code on a blocking thread: read straight into one buffer on the
+    /// local filesystem (no second copy), fetched through the runtime `handle` elsewhere.
+    pub fn read_blocking(
+        &self,
+        sha256: &str,
+        handle: &tokio::runtime::Handle,
+    ) -> Result<Vec<u8>, BlobError> {
+        if let Some(root) = &self.local_root {
+            return match std::fs::read(root.join(key(sha256).as_ref())) {
+                Ok(v) => Ok(v),
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    Err(BlobError::NotFound(sha256.into()))
+                }
+                Err(e) => Err(e.into()),
+            };
+        }
+        handle.block_on(self.get(sha256)).map(Vec::from)
+    }
+
+    /// A blob as a stream of chunks (downloads of large artifacts: never loaded whole).
+    pub async fn stream(
+        &self,
+        sha256: &str,
+    ) -> Result<futures_util::stream::BoxStream<'static, Result<Bytes, std::io::Error>>, BlobError>
+    {
+        use futures_util::{StreamExt, TryStreamExt};
+        match self.store.get(&key(sha256)).await {
+            Ok(r) => Ok(r.into_stream().map_err(std::io::Error::other).boxed()),
             Err(object_store::Error::NotFound { .. }) => Err(BlobError::NotFound(sha256.into())),
             Err(e) => Err(e.into()),
         }
@@ -162,6 +218,14 @@ impl Blobs {
             Ok(()) | Err(object_store::Error::NotFound { .. }) => Ok(()),
             Err(e) => Err(e.into()),
         }
+    }
+}
+
+/// Flush the directory entry of `path` (a rename is durable only once its directory is).
+async fn sync_dir(path: &FsPath) -> std::io::Result<()> {
+    match path.parent() {
+        Some(dir) => tokio::fs::File::open(dir).await?.sync_all().await,
+        None => Ok(()),
     }
 }
 

@@ -11,163 +11,150 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 use serde::Deserialize;
 
-/// Effective configuration of a running service.
-#[derive(Debug, Clone)]
-pub struct Config {
-    /// Address to listen on.
-    pub listen: SocketAddr,
-    /// Directory holding the SQLite database and the blob store.
-    pub data_dir: PathBuf,
-    /// Number of jobs run at once.
-    pub workers: usize,
-    /// How long a worker's claim on a job lasts without a heartbeat.
-    pub lease_secs: u64,
-    /// Interval between heartbeats (also the progress flush interval).
-    pub heartbeat_ms: u64,
-    /// Attempts per job before a transient failure becomes final.
-    pub max_attempts: u32,
-    /// First retry delay; doubles per attempt up to `backoff_cap_ms`.
-    pub backoff_base_ms: u64,
-    /// Largest retry delay.
-    pub backoff_cap_ms: u64,
-    /// Queued jobs allowed before `POST /v1/jobs` answers 429.
-    pub max_queued_jobs: u64,
-    /// Run-time limit of a job attempt, unless `time_limits` names its kind.
-    pub job_time_limit_secs: u64,
-    /// Per-kind run-time limits in seconds (file only).
-    pub time_limits: BTreeMap<String, u64>,
-    /// Finished jobs older than this are pruned (with their artifacts).
-    pub retention_days: u64,
-    /// Largest request body of an upload.
-    pub max_upload_bytes: u64,
-    /// Most files in one dataset (after unpacking archives).
-    pub max_files: usize,
-    /// Largest image in pixels (width × height) accepted at upload.
-    pub max_image_pixels: u64,
-    /// Largest image side accepted at upload.
-    pub max_image_side: u32,
-    /// Largest total uncompressed size of an archive.
-    pub max_archive_bytes: u64,
-    /// Largest ratio of uncompressed to compressed size, per entry and in total.
-    pub max_compression_ratio: u64,
-    /// Finished jobs kept in memory for `GET /v1/jobs/{id}` (0 disables the cache).
-    pub job_cache_entries: usize,
-}
-
-impl Default for Config {
-    fn default() -> Self {
-        Self {
-            listen: SocketAddr::from(([127, 0, 0, 1], 8080)),
-            data_dir: PathBuf::from("./caliper-data"),
-            workers: std::thread::available_parallelism()
-                .map(|n| n.get())
-                .unwrap_or(2),
-            lease_secs: 30,
-            heartbeat_ms: 1000,
-            max_attempts: 3,
-            backoff_base_ms: 1000,
-            backoff_cap_ms: 60_000,
-            max_queued_jobs: 1000,
-            job_time_limit_secs: 3600,
-            time_limits: BTreeMap::new(),
-            retention_days: 30,
-            max_upload_bytes: 4 << 30,
-            max_files: 5000,
-            max_image_pixels: 50_000_000,
-            max_image_side: 20_000,
-            max_archive_bytes: 4 << 30,
-            max_compression_ratio: 200,
-            job_cache_entries: 10_000,
+/// Declares every setting once: the effective [`Config`] field with its default, the
+/// `caliper serve` flag with its `CALIPER_*` variable and help text, and the TOML key.
+macro_rules! settings {
+    ($(
+        $(#[doc = $doc:literal])*
+        $name:ident: $ty:ty = $default:expr, env $env:literal, help $help:literal;
+    )*) => {
+        /// Effective configuration of a running service.
+        #[derive(Debug, Clone)]
+        pub struct Config {
+            $( $(#[doc = $doc])* pub $name: $ty, )*
+            /// Per-kind run-time limits in seconds (file only).
+            pub time_limits: BTreeMap<String, u64>,
+            /// Enables the `debug_hang` job kind (never returns, ignores cancellation) used by
+            /// the test-suite to prove the worker's watchdog; never listed in the API or spec.
+            pub debug_job_kinds: bool,
         }
-    }
+
+        impl Default for Config {
+            fn default() -> Self {
+                Self {
+                    $( $name: $default, )*
+                    time_limits: BTreeMap::new(),
+                    debug_job_kinds: false,
+                }
+            }
+        }
+
+        /// Flags of `caliper serve`; each also reads a `CALIPER_*` environment variable.
+        #[derive(Debug, Clone, Default, Args)]
+        pub struct ConfigArgs {
+            /// TOML configuration file (keys as the flags, with underscores).
+            #[arg(long, env = "CALIPER_CONFIG")]
+            pub config: Option<PathBuf>,
+            $(
+                #[doc = $help]
+                #[arg(long, env = $env)]
+                pub $name: Option<$ty>,
+            )*
+            /// Test-suite only: enable the `debug_hang` job kind.
+            #[arg(long, env = "CALIPER_DEBUG_JOB_KINDS", hide = true)]
+            pub debug_job_kinds: bool,
+        }
+
+        /// The TOML file: the same keys as the flags, all optional.
+        #[derive(Debug, Default, Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct FileConfig {
+            $( $name: Option<$ty>, )*
+            #[serde(default)]
+            time_limits: BTreeMap<String, u64>,
+        }
+
+        impl ConfigArgs {
+            /// Flags and environment over the file over the defaults.
+            fn merge(&self, file: FileConfig) -> Config {
+                let d = Config::default();
+                Config {
+                    $( $name: self.$name.clone().or(file.$name).unwrap_or(d.$name), )*
+                    time_limits: file.time_limits,
+                    debug_job_kinds: self.debug_job_kinds,
+                }
+            }
+        }
+    };
 }
 
-/// Flags of `caliper serve`; each also reads a `CALIPER_*` environment variable.
-#[derive(Debug, Clone, Default, Args)]
-pub struct ConfigArgs {
-    /// TOML configuration file (keys as the flags, with underscores).
-    #[arg(long, env = "CALIPER_CONFIG")]
-    pub config: Option<PathBuf>,
-    /// Address to listen on [default: 127.0.0.1:8080].
-    #[arg(long, env = "CALIPER_LISTEN")]
-    pub listen: Option<SocketAddr>,
-    /// Data directory: SQLite database and blobs [default: ./caliper-data].
-    #[arg(long, env = "CALIPER_DATA_DIR")]
-    pub data_dir: Option<PathBuf>,
-    /// Jobs run at once [default: number of cores].
-    #[arg(long, env = "CALIPER_WORKERS")]
-    pub workers: Option<usize>,
-    /// Lease of a running job without heartbeat, seconds [default: 30].
-    #[arg(long, env = "CALIPER_LEASE_SECS")]
-    pub lease_secs: Option<u64>,
-    /// Heartbeat and progress interval, milliseconds [default: 1000].
-    #[arg(long, env = "CALIPER_HEARTBEAT_MS")]
-    pub heartbeat_ms: Option<u64>,
-    /// Attempts per job for transient failures [default: 3].
-    #[arg(long, env = "CALIPER_MAX_ATTEMPTS")]
-    pub max_attempts: Option<u32>,
-    /// First retry delay, milliseconds [default: 1000].
-    #[arg(long, env = "CALIPER_BACKOFF_BASE_MS")]
-    pub backoff_base_ms: Option<u64>,
-    /// Largest retry delay, milliseconds [default: 60000].
-    #[arg(long, env = "CALIPER_BACKOFF_CAP_MS")]
-    pub backoff_cap_ms: Option<u64>,
-    /// Queued jobs before 429 [default: 1000].
-    #[arg(long, env = "CALIPER_MAX_QUEUED_JOBS")]
-    pub max_queued_jobs: Option<u64>,
-    /// Default run-time limit per job attempt, seconds [default: 3600].
-    #[arg(long, env = "CALIPER_JOB_TIME_LIMIT_SECS")]
-    pub job_time_limit_secs: Option<u64>,
-    /// Days finished jobs are kept [default: 30].
-    #[arg(long, env = "CALIPER_RETENTION_DAYS")]
-    pub retention_days: Option<u64>,
-    /// Largest upload body, bytes [default: 4294967296].
-    #[arg(long, env = "CALIPER_MAX_UPLOAD_BYTES")]
-    pub max_upload_bytes: Option<u64>,
-    /// Most files per dataset [default: 5000].
-    #[arg(long, env = "CALIPER_MAX_FILES")]
-    pub max_files: Option<usize>,
-    /// Largest image, pixels [default: 50000000].
-    #[arg(long, env = "CALIPER_MAX_IMAGE_PIXELS")]
-    pub max_image_pixels: Option<u64>,
-    /// Largest image side, pixels [default: 20000].
-    #[arg(long, env = "CALIPER_MAX_IMAGE_SIDE")]
-    pub max_image_side: Option<u32>,
-    /// Largest uncompressed archive, bytes [default: 4294967296].
-    #[arg(long, env = "CALIPER_MAX_ARCHIVE_BYTES")]
-    pub max_archive_bytes: Option<u64>,
-    /// Largest compression ratio in archives [default: 200].
-    #[arg(long, env = "CALIPER_MAX_COMPRESSION_RATIO")]
-    pub max_compression_ratio: Option<u64>,
-    /// Finished jobs cached in memory for reads; 0 disables [default: 10000].
-    #[arg(long, env = "CALIPER_JOB_CACHE_ENTRIES")]
-    pub job_cache_entries: Option<usize>,
-}
-
-/// The TOML file: the same keys as the flags, all optional.
-#[derive(Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct FileConfig {
-    listen: Option<SocketAddr>,
-    data_dir: Option<PathBuf>,
-    workers: Option<usize>,
-    lease_secs: Option<u64>,
-    heartbeat_ms: Option<u64>,
-    max_attempts: Option<u32>,
-    backoff_base_ms: Option<u64>,
-    backoff_cap_ms: Option<u64>,
-    max_queued_jobs: Option<u64>,
-    job_time_limit_secs: Option<u64>,
-    #[serde(default)]
-    time_limits: BTreeMap<String, u64>,
-    retention_days: Option<u64>,
-    max_upload_bytes: Option<u64>,
-    max_files: Option<usize>,
-    max_image_pixels: Option<u64>,
-    max_image_side: Option<u32>,
-    max_archive_bytes: Option<u64>,
-    max_compression_ratio: Option<u64>,
-    job_cache_entries: Option<usize>,
+settings! {
+    /// Address to listen on.
+    listen: SocketAddr = SocketAddr::from(([127, 0, 0, 1], 8080)),
+        env "CALIPER_LISTEN", help "Address to listen on [default: 127.0.0.1:8080].";
+    /// Directory holding the SQLite database and the blob store.
+    data_dir: PathBuf = PathBuf::from("./caliper-data"),
+        env "CALIPER_DATA_DIR", help "Data directory: SQLite database and blobs [default: ./caliper-data].";
+    /// Number of jobs run at once.
+    workers: usize = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(2),
+        env "CALIPER_WORKERS", help "Jobs run at once [default: number of cores].";
+    /// How long a worker's claim on a job lasts without a heartbeat.
+    lease_secs: u64 = 30,
+        env "CALIPER_LEASE_SECS", help "Lease of a running job without heartbeat, seconds [default: 30].";
+    /// Interval between heartbeats (also the progress flush interval).
+    heartbeat_ms: u64 = 1000,
+        env "CALIPER_HEARTBEAT_MS", help "Heartbeat and progress interval, milliseconds [default: 1000].";
+    /// Attempts per job before a transient failure becomes final.
+    max_attempts: u32 = 3,
+        env "CALIPER_MAX_ATTEMPTS", help "Attempts per job for transient failures [default: 3].";
+    /// First retry delay; doubles per attempt up to `backoff_cap_ms`.
+    backoff_base_ms: u64 = 1000,
+        env "CALIPER_BACKOFF_BASE_MS", help "First retry delay, milliseconds [default: 1000].";
+    /// Largest retry delay.
+    backoff_cap_ms: u64 = 60_000,
+        env "CALIPER_BACKOFF_CAP_MS", help "Largest retry delay, milliseconds [default: 60000].";
+    /// Queued jobs allowed before `POST /v1/jobs` answers 429.
+    max_queued_jobs: u64 = 1000,
+        env "CALIPER_MAX_QUEUED_JOBS", help "Queued jobs before 429 [default: 1000].";
+    /// Run-time limit of a job attempt, unless `time_limits` names its kind.
+    job_time_limit_secs: u64 = 3600,
+        env "CALIPER_JOB_TIME_LIMIT_SECS", help "Default run-time limit per job attempt, seconds [default: 3600].";
+    /// Seconds a job asked to stop (cancel, time limit) may take before the worker abandons
+    /// its thread, fails or cancels the job and takes the next one.
+    job_abandon_secs: u64 = 10,
+        env "CALIPER_JOB_ABANDON_SECS", help "Seconds a job asked to stop may take before its thread is abandoned [default: 10].";
+    /// Finished jobs older than this are pruned (with their artifacts), unless a document
+    /// cites them.
+    retention_days: u64 = 30,
+        env "CALIPER_RETENTION_DAYS", help "Days finished jobs are kept [default: 30].";
+    /// Seconds an unreferenced blob is kept before garbage collection deletes it.
+    blob_gc_grace_secs: u64 = 60,
+        env "CALIPER_BLOB_GC_GRACE_SECS", help "Seconds an unreferenced blob is kept before it is deleted [default: 60].";
+    /// Largest request body of an upload.
+    max_upload_bytes: u64 = 4 << 30,
+        env "CALIPER_MAX_UPLOAD_BYTES", help "Largest upload body, bytes [default: 4294967296].";
+    /// Most files in one dataset (after unpacking archives).
+    max_files: usize = 5000,
+        env "CALIPER_MAX_FILES", help "Most files per dataset [default: 5000].";
+    /// Largest image in pixels (width × height) accepted at upload.
+    max_image_pixels: u64 = 50_000_000,
+        env "CALIPER_MAX_IMAGE_PIXELS", help "Largest image, pixels [default: 50000000].";
+    /// Largest image side accepted at upload (and by every job).
+    max_image_side: u32 = 16_384,
+        env "CALIPER_MAX_IMAGE_SIDE", help "Largest image side, pixels [default: 16384].";
+    /// Largest total uncompressed size of an archive.
+    max_archive_bytes: u64 = 4 << 30,
+        env "CALIPER_MAX_ARCHIVE_BYTES", help "Largest uncompressed archive, bytes [default: 4294967296].";
+    /// Largest ratio of uncompressed to compressed size, per entry and in total.
+    max_compression_ratio: u64 = 200,
+        env "CALIPER_MAX_COMPRESSION_RATIO", help "Largest compression ratio in archives [default: 200].";
+    /// Finished jobs kept in memory for `GET /v1/jobs/{id}` (0 disables the cache).
+    job_cache_entries: usize = 10_000,
+        env "CALIPER_JOB_CACHE_ENTRIES", help "Finished jobs cached in memory for reads; 0 disables [default: 10000].";
+    /// Seconds a client has to send a request's headers; also how long an idle keep-alive
+    /// connection stays open.
+    header_timeout_secs: u64 = 30,
+        env "CALIPER_HEADER_TIMEOUT_SECS", help "Seconds to send request headers; idle keep-alive limit [default: 30].";
+    /// Seconds a request body may go without sending data before the request is dropped.
+    body_timeout_secs: u64 = 60,
+        env "CALIPER_BODY_TIMEOUT_SECS", help "Seconds a request body may stall before it is dropped [default: 60].";
+    /// Seconds between keep-alive comments on event streams (how soon a vanished client is
+    /// noticed when its job does not change).
+    sse_keepalive_secs: u64 = 15,
+        env "CALIPER_SSE_KEEPALIVE_SECS", help "Seconds between keep-alives on event streams [default: 15].";
+    /// Open HTTP connections at most; further ones wait in the kernel's backlog.
+    max_connections: usize = 512,
+        env "CALIPER_MAX_CONNECTIONS", help "Open HTTP connections at most [default: 512].";
 }
 
 /// A configuration that cannot be used.
@@ -194,71 +181,7 @@ impl ConfigArgs {
             Some(path) => load_file(path)?,
             None => FileConfig::default(),
         };
-        let d = Config::default();
-        let cfg = Config {
-            listen: self.listen.or(file.listen).unwrap_or(d.listen),
-            data_dir: self
-                .data_dir
-                .clone()
-                .or(file.data_dir)
-                .unwrap_or(d.data_dir),
-            workers: self.workers.or(file.workers).unwrap_or(d.workers),
-            lease_secs: self.lease_secs.or(file.lease_secs).unwrap_or(d.lease_secs),
-            heartbeat_ms: self
-                .heartbeat_ms
-                .or(file.heartbeat_ms)
-                .unwrap_or(d.heartbeat_ms),
-            max_attempts: self
-                .max_attempts
-                .or(file.max_attempts)
-                .unwrap_or(d.max_attempts),
-            backoff_base_ms: self
-                .backoff_base_ms
-                .or(file.backoff_base_ms)
-                .unwrap_or(d.backoff_base_ms),
-            backoff_cap_ms: self
-                .backoff_cap_ms
-                .or(file.backoff_cap_ms)
-                .unwrap_or(d.backoff_cap_ms),
-            max_queued_jobs: self
-                .max_queued_jobs
-                .or(file.max_queued_jobs)
-                .unwrap_or(d.max_queued_jobs),
-            job_time_limit_secs: self
-                .job_time_limit_secs
-                .or(file.job_time_limit_secs)
-                .unwrap_or(d.job_time_limit_secs),
-            time_limits: file.time_limits,
-            retention_days: self
-                .retention_days
-                .or(file.retention_days)
-                .unwrap_or(d.retention_days),
-            max_upload_bytes: self
-                .max_upload_bytes
-                .or(file.max_upload_bytes)
-                .unwrap_or(d.max_upload_bytes),
-            max_files: self.max_files.or(file.max_files).unwrap_or(d.max_files),
-            max_image_pixels: self
-                .max_image_pixels
-                .or(file.max_image_pixels)
-                .unwrap_or(d.max_image_pixels),
-            max_image_side: self
-                .max_image_side
-                .or(file.max_image_side)
-                .unwrap_or(d.max_image_side),
-            max_archive_bytes: self
-                .max_archive_bytes
-                .or(file.max_archive_bytes)
-                .unwrap_or(d.max_archive_bytes),
-            max_compression_ratio: self
-                .max_compression_ratio
-                .or(file.max_compression_ratio)
-                .unwrap_or(d.max_compression_ratio),
-            job_cache_entries: self
-                .job_cache_entries
-                .or(file.job_cache_entries)
-                .unwrap_or(d.job_cache_entries),
-        };
+        let cfg = self.merge(file);
         cfg.validate()?;
         Ok(cfg)
     }
@@ -268,6 +191,30 @@ impl Config {
     /// Reject values that would make the service misbehave.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let bad = |m: &str| Err(ConfigError::Invalid(m.to_string()));
+        // Durations are added to millisecond clocks and to `Instant`s: keep every one far
+        // from overflow (ten years is more than any real setting).
+        const TEN_YEARS_SECS: u64 = 10 * 366 * 86_400;
+        for (name, secs) in [
+            ("lease_secs", self.lease_secs),
+            ("job_time_limit_secs", self.job_time_limit_secs),
+            ("job_abandon_secs", self.job_abandon_secs),
+            ("blob_gc_grace_secs", self.blob_gc_grace_secs),
+            ("header_timeout_secs", self.header_timeout_secs),
+            ("body_timeout_secs", self.body_timeout_secs),
+            ("sse_keepalive_secs", self.sse_keepalive_secs),
+            ("retention_days", self.retention_days.saturating_mul(86_400)),
+            ("backoff_cap_ms", self.backoff_cap_ms / 1000),
+            ("heartbeat_ms", self.heartbeat_ms / 1000),
+        ]
+        .into_iter()
+        .chain(self.time_limits.iter().map(|(k, v)| (k.as_str(), *v)))
+        {
+            if secs > TEN_YEARS_SECS {
+                return Err(ConfigError::Invalid(format!(
+                    "{name} is too large (at most ten years)"
+                )));
+            }
+        }
         if self.workers == 0 {
             return bad("workers must be at least 1");
         }
@@ -282,6 +229,32 @@ impl Config {
         }
         if self.max_compression_ratio < 2 {
             return bad("max_compression_ratio must be at least 2");
+        }
+        if self.lease_secs == 0 {
+            return bad("lease_secs must be at least 1");
+        }
+        if self.header_timeout_secs == 0
+            || self.body_timeout_secs == 0
+            || self.sse_keepalive_secs == 0
+        {
+            return bad(
+                "header_timeout_secs, body_timeout_secs and sse_keepalive_secs must be at least 1",
+            );
+        }
+        if self.max_connections == 0 {
+            return bad("max_connections must be at least 1");
+        }
+        if self.max_image_pixels > caliper_core::io::MAX_IMAGE_PIXELS {
+            return Err(ConfigError::Invalid(format!(
+                "max_image_pixels is at most {} (the largest image any job accepts)",
+                caliper_core::io::MAX_IMAGE_PIXELS
+            )));
+        }
+        if self.max_image_side > caliper_core::io::MAX_IMAGE_SIDE {
+            return Err(ConfigError::Invalid(format!(
+                "max_image_side is at most {} (the largest side any job accepts)",
+                caliper_core::io::MAX_IMAGE_SIDE
+            )));
         }
         Ok(())
     }

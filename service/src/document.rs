@@ -64,6 +64,24 @@ pub fn seal(mut doc: Value, rev: Option<u64>) -> (String, String) {
     (canonical_json(&doc), etag)
 }
 
+/// The store's [`crate::store::Seal`] for `doc`: seals it with the `rev` the store assigns.
+pub fn sealer(doc: Value) -> crate::store::Seal {
+    Box::new(move |rev| {
+        let (body, etag) = seal(doc, rev);
+        crate::store::Sealed { body, etag }
+    })
+}
+
+/// SHA-256 over `sha256  name` lines in dataset order (the `sha256sum` layout): identifies
+/// a dataset's content independently of where it is stored.
+pub fn manifest_sha256(files: &[crate::store::DatasetFile]) -> String {
+    let mut manifest = String::new();
+    for f in files {
+        manifest.push_str(&format!("{}  {}\n", f.sha256, f.name));
+    }
+    sha256_hex(manifest.as_bytes())
+}
+
 /// Check that a sealed document's `etag` matches its content.
 pub fn verify(body: &Value) -> bool {
     let Some(tag) = body.get("etag").and_then(Value::as_str) else {

@@ -92,6 +92,11 @@ pub const PROBLEM_CODES: &[(&str, u16, &str)] = &[
     ("unsupported_file", 422, "File type not supported"),
     ("corrupt_image", 422, "Image cannot be decoded"),
     ("image_too_large", 422, "Image dimensions exceed the limit"),
+    (
+        "trailing_data",
+        422,
+        "File holds far more data than its image",
+    ),
     ("too_many_files", 422, "Too many files in the upload"),
     ("mixed_dataset", 422, "Upload mixes data kinds"),
     (
@@ -200,6 +205,12 @@ impl IntoResponse for ApiError {
                 .insert(header::RETRY_AFTER, HeaderValue::from(secs));
         }
         resp
+    }
+}
+
+impl From<crate::jobs::ParamError> for ApiError {
+    fn from(e: crate::jobs::ParamError) -> Self {
+        ApiError::new("invalid_param", e.message).with_field(e.field)
     }
 }
 

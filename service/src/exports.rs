@@ -1,10 +1,14 @@
 //! Export formats of documents (`?format=`), rendered on request from the stored document so
 //! that every revision can be exported in every format, including formats added later.
+//!
+//! Each kind declares its formats ([`crate::jobs::Kind::EXPORTS`]); the functions here only
+//! read the stored document's fields and hand them to the writers in `caliper_core::export`.
 
 use caliper_core::calib::{BoardGeometry, CalibOptions, Calibration};
 use serde_json::Value;
 
 use crate::error::ApiError;
+use crate::jobs::{Export, ExportError, exports_for};
 
 /// An export: its text and media type.
 pub struct Rendered {
@@ -12,31 +16,63 @@ pub struct Rendered {
     pub media_type: &'static str,
 }
 
-/// Render a document in an export format.
+/// Render a document in an export format its kind offers.
 pub fn render(doc: &Value, format: &str) -> Result<Rendered, ApiError> {
     let schema = doc.get("schema").and_then(Value::as_str).unwrap_or("");
-    let unsupported = || {
-        ApiError::new(
+    let offered = exports_for(schema);
+    let Some(export) = offered.iter().find(|e| e.format == format) else {
+        let list: Vec<&str> = offered.iter().map(|e| e.format).collect();
+        return Err(ApiError::new(
             "unsupported_format",
-            format!(
-                "documents of schema {schema:?} have no {format:?} export; camera documents offer opencv-yaml, ros-yaml, kalibr-yaml and json; imu_noise documents kalibr-yaml; photometric documents dso-pcalib"
-            ),
+            if list.is_empty() {
+                format!("documents of schema {schema:?} have no exports")
+            } else {
+                format!(
+                    "documents of schema {schema:?} have no {format:?} export; they offer {}",
+                    list.join(", ")
+                )
+            },
         )
-        .with_field("format")
+        .with_field("format"));
     };
-    if schema == "caliper.imu_noise/v1" && format == "kalibr-yaml" {
-        return kalibr_imu_yaml(doc);
-    }
-    if schema == "caliper.photometric/v1" && format == "dso-pcalib" {
-        return dso_pcalib(doc);
-    }
-    if schema != "caliper.camera/v1" {
-        return Err(unsupported());
-    }
-    let fmt: caliper_core::export::ExportFormat = format.parse().map_err(|_| unsupported())?;
+    let body = (export.render)(doc).map_err(|e| match e {
+        ExportError::Unavailable(m) => ApiError::new("unsupported_format", m).with_field("format"),
+        ExportError::Corrupt(m) => ApiError::internal(format!("export {format}: {m}")),
+    })?;
+    Ok(Rendered {
+        body,
+        media_type: export.media_type,
+    })
+}
+
+/// The camera document's exports, one per `caliper_core::export` format.
+pub const CAMERA_EXPORTS: &[Export] = &[
+    Export {
+        format: "opencv-yaml",
+        media_type: caliper_core::export::YAML_MEDIA_TYPE,
+        render: |d| camera(d, caliper_core::export::ExportFormat::OpencvYaml),
+    },
+    Export {
+        format: "ros-yaml",
+        media_type: caliper_core::export::YAML_MEDIA_TYPE,
+        render: |d| camera(d, caliper_core::export::ExportFormat::RosYaml),
+    },
+    Export {
+        format: "kalibr-yaml",
+        media_type: caliper_core::export::YAML_MEDIA_TYPE,
+        render: |d| camera(d, caliper_core::export::ExportFormat::KalibrYaml),
+    },
+    Export {
+        format: "json",
+        media_type: "application/json",
+        render: |d| camera(d, caliper_core::export::ExportFormat::Json),
+    },
+];
+
+fn camera(doc: &Value, fmt: caliper_core::export::ExportFormat) -> Result<String, ExportError> {
     let params = &doc["parameters"];
     let calibration: Calibration = serde_json::from_value(params["calibration"].clone())
-        .map_err(|e| ApiError::internal(format!("stored camera document unreadable: {e}")))?;
+        .map_err(|e| ExportError::Corrupt(e.to_string()))?;
     let board = &params["board"];
     let board = match (
         board["cols"].as_u64(),
@@ -64,32 +100,30 @@ pub fn render(doc: &Value, format: &str) -> Result<Rendered, ApiError> {
         rostopic: None,
         calibration_time: doc["created_at"].as_str(),
     };
-    let body = caliper_core::export::export(&input, fmt)
-        .map_err(|e| ApiError::new("unsupported_format", e.to_string()).with_field("format"))?;
-    Ok(Rendered {
-        body,
-        media_type: fmt.media_type(),
-    })
+    caliper_core::export::export(&input, fmt).map_err(|e| ExportError::Unavailable(e.to_string()))
 }
 
-/// DSO's `pcalib.txt` (the inverse response as 256 values) of a photometric document.
-fn dso_pcalib(doc: &Value) -> Result<Rendered, ApiError> {
+/// The photometric documents' export: DSO's `pcalib.txt` (the inverse response as 256 values).
+pub const PHOTOMETRIC_EXPORTS: &[Export] = &[Export {
+    format: "dso-pcalib",
+    media_type: "text/plain; charset=utf-8",
+    render: dso_pcalib,
+}];
+
+fn dso_pcalib(doc: &Value) -> Result<String, ExportError> {
     use caliper_core::photometric::{InverseResponse, PhotometricModel, dso};
     let model: PhotometricModel = serde_json::from_value(doc["parameters"]["model"].clone())
-        .map_err(|e| ApiError::internal(format!("stored photometric document unreadable: {e}")))?;
+        .map_err(|e| ExportError::Corrupt(e.to_string()))?;
     let inv = InverseResponse::new(model.inverse_256)
-        .map_err(|e| ApiError::new("unsupported_format", e.to_string()).with_field("format"))?;
-    Ok(Rendered {
-        body: dso::write_pcalib(&inv),
-        media_type: "text/plain; charset=utf-8",
-    })
+        .map_err(|e| ExportError::Unavailable(e.to_string()))?;
+    Ok(dso::write_pcalib(&inv))
 }
 
 /// Kalibr `imu.yaml` (field list: `ImuParameters` in Kalibr's `ConfigReader.py`) from an
 /// `imu_noise` document: the worst axis of each sensor. A random walk the log could not
 /// determine is written as its upper bound, with a comment saying so; without even a bound
 /// the export is refused rather than inventing a number.
-fn kalibr_imu_yaml(doc: &Value) -> Result<Rendered, ApiError> {
+pub fn kalibr_imu_yaml(doc: &Value) -> Result<String, ExportError> {
     let k = &doc["parameters"]["kalibr"];
     let mut out = String::from("# Kalibr imu.yaml written by Caliper from an imu_noise document\n");
     for (key, bound) in [
@@ -110,21 +144,14 @@ fn kalibr_imu_yaml(doc: &Value) -> Result<Rendered, ApiError> {
                 "{key}: {b:e}  # upper bound: the log is too short to determine it\n"
             )),
             (None, None) => {
-                return Err(ApiError::new(
-                    "unsupported_format",
-                    format!(
-                        "{key} could not be determined from this log; no Kalibr file can be written"
-                    ),
-                )
-                .with_field("format"));
+                return Err(ExportError::Unavailable(format!(
+                    "{key} could not be determined from this log; no Kalibr file can be written"
+                )));
             }
         }
     }
     let rate = k["update_rate"].as_f64().unwrap_or(0.0);
     out.push_str("rostopic: /imu0\n");
     out.push_str(&format!("update_rate: {rate}\n"));
-    Ok(Rendered {
-        body: out,
-        media_type: "application/yaml",
-    })
+    Ok(out)
 }

@@ -6,13 +6,16 @@
 //! [`ingest`] (upload validation), [`server`] (start/stop), [`offline`] (`caliper run`).
 
 pub mod api;
+pub mod blob_gc;
 pub mod blobs;
 pub mod clock;
 pub mod config;
 pub mod document;
 pub mod error;
 pub mod exports;
+pub mod http_server;
 pub mod ingest;
+pub mod job_watch;
 pub mod jobs;
 pub mod offline;
 pub mod server;

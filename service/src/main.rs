@@ -4,8 +4,8 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use caliper_service::config::ConfigArgs;
-use caliper_service::offline::{self, RunCommand};
-use clap::{Parser, Subcommand};
+use caliper_service::offline;
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 #[derive(Parser)]
 #[command(
@@ -30,24 +30,31 @@ enum Command {
     },
     /// Print the OpenAPI document.
     Openapi,
-    /// Run a job kind on local files and print its document.
-    Run {
-        #[command(subcommand)]
-        kind: RunCommand,
-    },
+    /// Run a job kind on local files and print its document (one subcommand per job kind).
+    Run,
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    match cli.command {
-        Command::Openapi => emit(&caliper_service::openapi_json()),
-        Command::Run { kind } => match offline::run(kind) {
+    // `caliper run`'s subcommands come from the job-kind registry.
+    let matches = Cli::command()
+        .mut_subcommand("run", offline::command)
+        .get_matches();
+    if let Some(("run", m)) = matches.subcommand() {
+        return match offline::run(m) {
             Ok(doc) => emit(&format!("{doc}\n")),
             Err(e) => {
                 eprintln!("caliper: {e}");
                 ExitCode::from(2)
             }
-        },
+        };
+    }
+    let cli = match Cli::from_arg_matches(&matches) {
+        Ok(c) => c,
+        Err(e) => e.exit(),
+    };
+    match cli.command {
+        Command::Openapi => emit(&caliper_service::openapi_json()),
+        Command::Run => ExitCode::from(2),
         Command::Serve {
             config,
             shutdown_grace_secs,
@@ -94,7 +101,7 @@ fn serve(args: ConfigArgs, grace: Duration) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    rt.block_on(async move {
+    let code = rt.block_on(async move {
         let server = match caliper_service::server::start(config).await {
             Ok(s) => s,
             Err(e) => {
@@ -109,7 +116,10 @@ fn serve(args: ConfigArgs, grace: Duration) -> ExitCode {
         tracing::info!("shutting down");
         server.shutdown(grace).await;
         ExitCode::SUCCESS
-    })
+    });
+    // Do not wait for threads still running: an abandoned job thread dies with the process.
+    rt.shutdown_timeout(Duration::from_millis(200));
+    code
 }
 
 async fn wait_for_signal() {

@@ -13,7 +13,7 @@ use crate::blobs::Blobs;
 use crate::config::Config;
 use crate::jobs::worker::{self, Shutdown};
 use crate::state::AppState;
-use crate::store::{SqliteStore, Store};
+use crate::store::{BlobRefs, JobQueue, SqliteStore};
 
 /// Why the service could not start.
 #[derive(Debug, thiserror::Error)]
@@ -76,6 +76,9 @@ pub async fn open_state(config: Config) -> Result<(AppState, File), StartError> 
             "re-queued jobs left running by a previous process"
         );
     }
+    // Pins belong to writers of a previous process (we hold the store alone): drop them; the
+    // blobs they protected become GC candidates.
+    store.clear_pins(crate::clock::now_ms()).await?;
     let blobs = Blobs::local(&dir.join("blobs"))?;
     let state = AppState::new(config, Arc::new(store), blobs, metrics_handle());
     Ok((state, lock))
@@ -108,14 +111,11 @@ pub async fn start(config: Config) -> Result<Server, StartError> {
     let app = crate::api::app(state.clone());
     let http_stop = tokio_util::sync::CancellationToken::new();
     let stop = http_stop.clone();
-    let http = tokio::spawn(async move {
-        let r = axum::serve(listener, app)
-            .with_graceful_shutdown(async move { stop.cancelled().await })
-            .await;
-        if let Err(e) = r {
-            tracing::error!(error = %e, "http server failed");
-        }
-    });
+    let limits = crate::http_server::ConnLimits {
+        header_timeout: Duration::from_secs(state.config().header_timeout_secs),
+        max_connections: state.config().max_connections,
+    };
+    let http = tokio::spawn(crate::http_server::serve(listener, app, limits, stop));
     Ok(Server {
         addr,
         state,
@@ -128,20 +128,43 @@ pub async fn start(config: Config) -> Result<Server, StartError> {
 }
 
 impl Server {
-    /// Graceful shutdown: stop taking jobs and requests, give running jobs `grace` to finish,
-    /// then stop them (they are re-queued for the next start).
+    /// Graceful shutdown within `grace`, whatever the running jobs do: stop taking jobs and
+    /// requests, give running jobs most of `grace` to finish, then ask them to stop (they are
+    /// re-queued without losing an attempt); a job that ignores the request has its thread
+    /// abandoned (it dies with the process) and open connections are dropped at the deadline.
     pub async fn shutdown(self, grace: Duration) {
+        let deadline = tokio::time::Instant::now() + grace;
+        // Time kept back for stopping jobs and writing their re-queue.
+        let reserve = (grace / 2).min(Duration::from_secs(2));
         self.shutdown.stop.cancel();
         self.http_stop.cancel();
         self.tracker.close();
-        if tokio::time::timeout(grace, self.tracker.wait())
+        if tokio::time::timeout_at(deadline - reserve, self.tracker.wait())
             .await
             .is_err()
         {
             tracing::warn!("running jobs did not finish within the grace period; re-queuing them");
             self.shutdown.abort.cancel();
-            self.tracker.wait().await;
+            if tokio::time::timeout_at(deadline, self.tracker.wait())
+                .await
+                .is_err()
+            {
+                tracing::error!(
+                    "workers did not stop by the end of the grace period; their jobs are re-queued at the next start"
+                );
+            }
         }
-        let _ = tokio::time::timeout(Duration::from_secs(5), self.http).await;
+        let http = self.http;
+        let abort = http.abort_handle();
+        if tokio::time::timeout_at(
+            deadline.max(tokio::time::Instant::now() + Duration::from_millis(200)),
+            http,
+        )
+        .await
+        .is_err()
+        {
+            // Long-lived connections (event streams) are cut rather than waited for.
+            abort.abort();
+        }
     }
 }

@@ -37,6 +37,7 @@ struct Inner {
     metrics: Option<PrometheusHandle>,
     cancel_flags: Mutex<HashMap<Uuid, Arc<AtomicBool>>>,
     finished_jobs: RwLock<HashMap<Uuid, Bytes>>,
+    watchers: crate::job_watch::Watchers,
 }
 
 /// Cheap-to-clone handle on everything a handler or worker needs.
@@ -63,8 +64,14 @@ impl AppState {
                 metrics,
                 cancel_flags: Mutex::new(HashMap::new()),
                 finished_jobs: RwLock::new(HashMap::new()),
+                watchers: Default::default(),
             }),
         }
+    }
+
+    /// Shared watchers of followed jobs (see [`crate::job_watch`]).
+    pub fn watchers(&self) -> &crate::job_watch::Watchers {
+        &self.inner.watchers
     }
 
     pub fn config(&self) -> &Config {

@@ -34,6 +34,8 @@ pub async fn start_with(tweak: impl FnOnce(&mut Config)) -> TestServer {
         lease_secs: 5,
         backoff_base_ms: 50,
         backoff_cap_ms: 200,
+        // Deletions are observable at once (the default keeps blobs a minute for downloads).
+        blob_gc_grace_secs: 0,
         ..Config::default()
     };
     tweak(&mut cfg);

@@ -29,7 +29,7 @@ use crate::progress::Progress;
 
 pub use laplacian::laplacian_variance;
 pub use plot::render_svg;
-pub use svd::svd_beta;
+pub use svd::{MAX_BETA_SIDE, reduction_factor, svd_beta};
 
 /// How the two per-score verdicts combine into `blurred`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -57,17 +57,23 @@ pub enum BlurRule {
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 pub struct BlurParams {
     /// Number of largest singular values in the numerator of β (Su et al. use 10). 1..=64.
+    #[cfg_attr(feature = "schema", schema(minimum = 1, maximum = 64))]
     pub k: usize,
     /// An image is blurred by the Laplacian criterion if its Laplacian variance is below this.
     /// Data-dependent: grows with resolution, contrast and noise (100 is the folklore value for
-    /// clean 640×480 frames; noisy frames can exceed it even when blurred). Must be ≥ 0.
+    /// clean 640×480 frames; noisy frames can exceed it even when blurred). Must be within [0, 1e9].
+    #[cfg_attr(feature = "schema", schema(minimum = 0.0, maximum = 1e9))]
     pub laplacian_threshold: f64,
     /// An image is blurred by the β criterion if β is above this (0.6 in the original paper's
     /// data; 0.47–0.52 measured elsewhere). Must be within [0, 1].
+    #[cfg_attr(feature = "schema", schema(minimum = 0.0, maximum = 1.0))]
     pub beta_threshold: f64,
     /// How the two criteria combine: `either` (default), `both`, `laplacian` or `beta`.
     pub rule: BlurRule,
 }
+
+/// Largest accepted `laplacian_threshold` (a thousand times the largest possible variance).
+pub const MAX_LAPLACIAN_THRESHOLD: f64 = 1e9;
 
 impl Default for BlurParams {
     fn default() -> Self {
@@ -86,10 +92,15 @@ impl BlurParams {
         if !(1..=64).contains(&self.k) {
             return Err(CoreError::param("k", "must be between 1 and 64"));
         }
-        if !self.laplacian_threshold.is_finite() || self.laplacian_threshold < 0.0 {
+        // The variance of a 3×3 Laplacian on 0..255 values cannot exceed (4·255)² ≈ 1.04e6;
+        // a bound far above that keeps every threshold meaningful and every derived quantity
+        // (plot axes are a factor of a few around it) finite.
+        if !self.laplacian_threshold.is_finite()
+            || !(0.0..=MAX_LAPLACIAN_THRESHOLD).contains(&self.laplacian_threshold)
+        {
             return Err(CoreError::param(
                 "laplacian_threshold",
-                "must be a finite number ≥ 0",
+                "must be a finite number within [0, 1e9]",
             ));
         }
         if !(0.0..=1.0).contains(&self.beta_threshold) {

@@ -22,22 +22,25 @@ pub fn render_svg(report: &BlurReport, params: &BlurParams) -> String {
 
 fn draw(out: &mut String, report: &BlurReport, params: &BlurParams) -> Result<(), String> {
     let e = |e: DrawingAreaErrorKind<std::io::Error>| e.to_string();
-    // Log axis: clamp zero variances (flat images) to a small positive floor.
+    // Log axis: clamp zero variances (flat images) to a small positive floor, and every value
+    // to a ceiling far above any real variance, so that the axis bounds stay finite whatever
+    // the inputs (an infinite bound makes the plotting library's tick search never end).
     const FLOOR: f64 = 1e-2;
+    const CEILING: f64 = 1e12;
+    let clamp = |v: f64| {
+        if v.is_finite() {
+            v.clamp(FLOOR, CEILING)
+        } else {
+            CEILING
+        }
+    };
     let xs = report
         .images
         .iter()
-        .map(|s| s.laplacian_variance.max(FLOOR))
-        .chain(std::iter::once(params.laplacian_threshold.max(FLOOR)));
-    let (lo, hi) = xs.fold((f64::INFINITY, 0.0f64), |(lo, hi), v| {
-        (lo.min(v), hi.max(v))
-    });
-    let (lo, hi) = if lo.is_finite() && hi > 0.0 {
-        (lo / 2.0, hi * 2.0)
-    } else {
-        (FLOOR, 1e4)
-    };
-
+        .map(|s| clamp(s.laplacian_variance))
+        .chain(std::iter::once(clamp(params.laplacian_threshold)));
+    let (lo, hi) = xs.fold((CEILING, FLOOR), |(lo, hi), v| (lo.min(v), hi.max(v)));
+    let (lo, hi) = crate::plot_axis::log(lo / 2.0, (hi * 2.0).max(lo * 4.0));
     let root = SVGBackend::with_string(out, (640, 480)).into_drawing_area();
     root.fill(&WHITE).map_err(e)?;
     let mut chart = ChartBuilder::on(&root)
@@ -53,7 +56,7 @@ fn draw(out: &mut String, report: &BlurReport, params: &BlurParams) -> Result<()
         .draw()
         .map_err(e)?;
 
-    let t = params.laplacian_threshold.max(FLOOR);
+    let t = clamp(params.laplacian_threshold);
     chart
         .draw_series(LineSeries::new(
             vec![(t, 0.0), (t, 1.0)],
@@ -70,7 +73,7 @@ fn draw(out: &mut String, report: &BlurReport, params: &BlurParams) -> Result<()
         .draw_series(report.images.iter().map(|s| {
             let colour = if s.blurred { BLURRED } else { SHARP };
             Circle::new(
-                (s.laplacian_variance.max(FLOOR), s.svd_beta.clamp(0.0, 1.0)),
+                (clamp(s.laplacian_variance), s.svd_beta.clamp(0.0, 1.0)),
                 4,
                 colour.filled(),
             )

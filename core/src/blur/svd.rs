@@ -36,11 +36,46 @@ pub(crate) enum Route {
     Svd,
 }
 
+/// Largest short side on which β is computed at full resolution. The cost grows with the cube
+/// of the short side (a 5000×5000 frame took 73 s and 657 MB, issue D7); above this the image
+/// is first reduced by [`reduction_factor`]. 2304 keeps 4K UHD (3840×2160) and every smaller
+/// frame exact and bounds the worst case to a few seconds.
+pub const MAX_BETA_SIDE: usize = 2304;
+
+/// The integer factor f by which an image is box-reduced before β: the smallest with
+/// short side / f ≤ [`MAX_BETA_SIDE`] (1 for every image up to that size).
+pub fn reduction_factor(width: u32, height: u32) -> usize {
+    (width.min(height) as usize).div_ceil(MAX_BETA_SIDE).max(1)
+}
+
 /// The image as an n×m column-major f64 matrix B whose m columns are the m "short-side" vectors
 /// (rows of a wide image, columns of a tall one), so that G = Bᵀ·B is m×m with m = min(w, h).
+///
+/// With a reduction factor f > 1, each entry is the *sum* of an f×f block (trailing partial
+/// blocks dropped): still integers, so G stays exact (f ≤ 8 keeps every product and partial
+/// sum below 2⁵³ up to the 16384-px limit), and β, being scale-invariant, is that of the box-
+/// downscaled image.
 fn short_side_matrix(img: &Gray) -> Mat<f64> {
     let (w, h) = (img.width as usize, img.height as usize);
     let d = &img.data;
+    let f = reduction_factor(img.width, img.height);
+    if f > 1 {
+        let (rw, rh) = (w / f, h / f);
+        let block = |x: usize, y: usize| -> f64 {
+            let mut acc = 0u32;
+            for yy in y * f..(y + 1) * f {
+                for &p in &d[yy * w + x * f..yy * w + (x + 1) * f] {
+                    acc += u32::from(p);
+                }
+            }
+            f64::from(acc)
+        };
+        return if rh <= rw {
+            Mat::from_fn(rw, rh, |i, j| block(i, j))
+        } else {
+            Mat::from_fn(rh, rw, |i, j| block(j, i))
+        };
+    }
     if h <= w {
         // Column j of B = row j of the image (contiguous).
         Mat::from_fn(w, h, |i, j| f64::from(d[j * w + i]))
@@ -167,6 +202,7 @@ pub(crate) fn beta_from_sorted(sigma: &[f64], k: usize) -> f64 {
 /// Equals `s = np.linalg.svd(gray / 255., compute_uv=False); s[:k].sum() / s.sum()` to better
 /// than 1e-9 absolute (see the module docs for how this is ensured without a full SVD). An
 /// all-black image gives 1.0 (numpy would give NaN); `k ≥ min(width, height)` gives 1.0.
+/// Images whose short side exceeds [`MAX_BETA_SIDE`] are box-reduced first (see there).
 /// Runs single-threaded: callers parallelise across images.
 pub fn svd_beta(img: &Gray, k: usize) -> CoreResult<f64> {
     if k == 0 {

@@ -390,3 +390,69 @@ fn params_validate_and_deserialize() {
     assert_eq!((p.k, p.rule, p.beta_threshold), (5, BlurRule::Both, 0.6));
     assert!(serde_json::from_str::<BlurParams>(r#"{"kk": 5}"#).is_err());
 }
+
+/// Issue D1: a threshold of 1e308 doubled the plot's axis bound to infinity and the chart
+/// never finished. Validation refuses it now, and the chart stays finite even when asked.
+#[test]
+fn extreme_thresholds_are_refused_and_never_hang_the_plot() {
+    for t in [1e308, f64::MAX, 1e10, f64::INFINITY, f64::NAN, -1.0] {
+        let p = BlurParams {
+            laplacian_threshold: t,
+            ..BlurParams::default()
+        };
+        assert!(p.validate().is_err(), "{t} accepted");
+    }
+    assert!(
+        BlurParams {
+            laplacian_threshold: MAX_LAPLACIAN_THRESHOLD,
+            ..BlurParams::default()
+        }
+        .validate()
+        .is_ok()
+    );
+    let (names, files) = batch();
+    let mut r = score_images(
+        &names,
+        |i| Ok(files[i].clone()),
+        &BlurParams::default(),
+        &ImageLimits::default(),
+        &NoProgress,
+    )
+    .unwrap();
+    r.images[0].laplacian_variance = f64::MAX;
+    r.images[1].laplacian_variance = f64::NAN;
+    for t in [1e308, f64::MAX, f64::INFINITY, 0.0] {
+        let params = BlurParams {
+            laplacian_threshold: t,
+            ..BlurParams::default()
+        };
+        let svg = render_svg(&r, &params);
+        assert!(svg.starts_with("<svg"), "{t}: {svg}");
+        assert_eq!(svg.matches("<circle").count(), 3);
+    }
+}
+
+/// Issue D7: β's cost is cubic in the short side, so large frames are box-reduced first. A
+/// frame made of constant 2×2 blocks reduces to exactly the frame of its block values.
+#[test]
+fn beta_of_a_large_frame_is_that_of_its_box_reduction() {
+    assert_eq!(reduction_factor(3840, 2160), 1);
+    assert_eq!(reduction_factor(5000, 5000), 3);
+    assert_eq!(reduction_factor(16_384, 16_384), 8);
+    let (sw, sh) = (1160u32, 1153u32);
+    let small: Vec<u8> = (0..sw * sh)
+        .map(|i| {
+            let (x, y) = (i % sw, i / sw);
+            ((x * 7 + y * 13 + (x * y) % 31) % 256) as u8
+        })
+        .collect();
+    let (bw, bh) = (sw * 2, sh * 2);
+    let big: Vec<u8> = (0..bw * bh)
+        .map(|i| small[((i / bw / 2) * sw + (i % bw) / 2) as usize])
+        .collect();
+    assert!(bw.min(bh) as usize > MAX_BETA_SIDE);
+    let small = Gray::new(sw, sh, small).unwrap();
+    let big = Gray::new(bw, bh, big).unwrap();
+    let (a, b) = (svd_beta(&small, 10).unwrap(), svd_beta(&big, 10).unwrap());
+    assert!((a - b).abs() < 1e-9, "{a} vs {b}");
+}

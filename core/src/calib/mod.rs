@@ -62,7 +62,9 @@ const MAD_TO_SIGMA: f64 = 1.482_602_218_505_602;
 #[serde(rename_all = "snake_case")]
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 pub enum ModelKind {
-    /// Pinhole with Brown-Conrady k1, k2, p1, p2, k3 ([`PinholeRadTan`]).
+    /// Pinhole with Brown-Conrady k1, k2, p1, p2, k3 ([`PinholeRadTan`]). Written
+    /// `pinhole_rad_tan`; Kalibr's spelling `pinhole_radtan` is accepted too.
+    #[serde(alias = "pinhole_radtan")]
     PinholeRadTan,
     /// Kannala-Brandt fisheye k1..k4 ([`KannalaBrandt`]).
     KannalaBrandt,

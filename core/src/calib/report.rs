@@ -152,7 +152,10 @@ fn draw_view_rms(out: &mut String, calibration: &Calibration) -> DrawResult {
         .x_label_area_size(28)
         .y_label_area_size(44)
         .caption("RMS per view (px)", ("sans-serif", 16))
-        .build_cartesian_2d(0.0..n as f64, 0.0..top)
+        .build_cartesian_2d(
+            0.0..(n as f64).max(1.0),
+            0.0..crate::plot_axis::linear(0.0, top).1,
+        )
         .map_err(err)?;
     chart
         .configure_mesh()

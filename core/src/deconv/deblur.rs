@@ -117,7 +117,14 @@ impl DeblurParams {
             (Some(_), false) => {
                 return Err(CoreError::param("gyro", "only used by method gyro"));
             }
-            (Some(g), true) => g.validate()?,
+            // Errors name the field by its path in the request (`gyro.fx`), as every other.
+            (Some(g), true) => g.validate().map_err(|e| match e {
+                CoreError::InvalidParam { field, message } => CoreError::InvalidParam {
+                    field: format!("gyro.{field}"),
+                    message,
+                },
+                other => other,
+            })?,
             (None, false) => {}
         }
         if let Some([nx, ny]) = self.gyro_grid {

@@ -25,6 +25,7 @@ mod color;
 mod deblur;
 mod fft;
 mod gyro;
+mod gyro_log;
 mod metrics;
 mod ops;
 mod psf;
@@ -46,6 +47,7 @@ pub use color::{ChannelLayout, SampleDepth, SplitImage, merge_image, split_image
 pub use deblur::{DeblurMethod, DeblurOutput, DeblurParams, MAX_GYRO_GRID, deblur_image, psf_png};
 pub use fft::{Fft2, fast_len, is_smooth};
 pub use gyro::{GyroPsfParams, GyroSample, gyro_psf, gyro_psf_at, gyro_psf_grid};
+pub use gyro_log::gyro_trace_from_log;
 pub use metrics::{error_ratio, error_ratio_aligned, psnr, ssim};
 pub use psf::{MAX_PSF_SIZE, Psf};
 pub use resample::resize;

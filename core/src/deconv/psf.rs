@@ -80,7 +80,16 @@ impl Psf {
                 out[y * ow + x] = data[y * width + x].max(0.0);
             }
         }
-        let sum: f64 = out.iter().sum();
+        let mut sum: f64 = out.iter().sum();
+        if !sum.is_finite() {
+            // Huge finite weights (1e308 each) overflow the sum: scale by the largest first
+            // (the scaled sum is at most the value count). Only then, so that ordinary kernels
+            // normalise bit for bit as before.
+            for v in &mut out {
+                *v /= max;
+            }
+            sum = out.iter().sum();
+        }
         for v in &mut out {
             *v /= sum;
         }

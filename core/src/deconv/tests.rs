@@ -436,3 +436,13 @@ impl Psf {
         out
     }
 }
+
+/// Issue D12: weights so large that their sum overflows still normalise (scaled by the peak).
+#[test]
+fn huge_finite_weights_normalise() {
+    let k = Psf::from_weights(3, 1, vec![1e308; 3]).expect("huge weights");
+    for v in &k.data {
+        assert!((v - 1.0 / 3.0).abs() < 1e-15, "{k:?}");
+    }
+    assert!(Psf::from_weights(3, 1, vec![f64::MAX, 0.0, f64::MAX]).is_ok());
+}

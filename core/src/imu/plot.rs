@@ -49,7 +49,8 @@ fn draw_allan(out: &mut String, report: &ImuNoiseReport) -> Result<(), DrawErr> 
         if !(tlo.is_finite() && thi > tlo && alo.is_finite() && ahi > alo) {
             continue;
         }
-        let (tlo, thi, alo, ahi) = (tlo / 1.5, thi * 1.5, alo / 2.0, ahi * 2.0);
+        let (tlo, thi) = crate::plot_axis::log(tlo / 1.5, thi * 1.5);
+        let (alo, ahi) = crate::plot_axis::log(alo / 2.0, ahi * 2.0);
         let mut chart = ChartBuilder::on(&panels[pi])
             .margin(16)
             .x_label_area_size(36)
@@ -174,11 +175,13 @@ fn draw_thermal(out: &mut String, report: &ImuThermalReport) -> Result<(), DrawE
             continue;
         }
         let pad = ((hi - lo) * 0.08).max(1e-9);
+        let xr = crate::plot_axis::linear(t0, t1);
+        let yr = crate::plot_axis::linear(lo - pad, hi + pad);
         let mut chart = ChartBuilder::on(&panels[pi])
             .margin(16)
             .x_label_area_size(36)
             .y_label_area_size(64)
-            .build_cartesian_2d(t0..t1, (lo - pad)..(hi + pad))?;
+            .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1)?;
         chart
             .configure_mesh()
             .x_desc("temperature [degC]")

@@ -9,6 +9,10 @@
 //! 5.0) returns, so that blur scores agree with the peer bit for bit on PNG and 8-bit TIFF; see
 //! [`decode_gray8`] for the measured rules.
 
+pub mod archive;
+mod sniff;
+pub use sniff::{Sniffed, sniff};
+
 use std::io::{BufRead, Cursor, Seek};
 
 use image::{DynamicImage, ImageDecoder, ImageFormat, ImageReader};
@@ -30,14 +34,20 @@ pub struct ImageLimits {
     pub max_alloc_bytes: u64,
 }
 
+/// Largest image side any algorithm accepts (the default limit, and the ceiling of every
+/// configured one, so an image accepted at upload is accepted by every job).
+pub const MAX_IMAGE_SIDE: u32 = 16_384;
+/// Largest image area any algorithm accepts.
+pub const MAX_IMAGE_PIXELS: u64 = 100_000_000;
+
 impl Default for ImageLimits {
     /// 16384 px per side, 100 Mpx, 512 MiB: room for any camera frame, far below what would
     /// exhaust a worker.
     fn default() -> Self {
         Self {
-            max_width: 16_384,
-            max_height: 16_384,
-            max_pixels: 100_000_000,
+            max_width: MAX_IMAGE_SIDE,
+            max_height: MAX_IMAGE_SIDE,
+            max_pixels: MAX_IMAGE_PIXELS,
             max_alloc_bytes: 512 * 1024 * 1024,
         }
     }

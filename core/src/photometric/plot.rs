@@ -114,6 +114,8 @@ fn draw_curves(
     fit: &[(f64, f64)],
     reference: Option<&[(f64, f64)]>,
 ) -> Result<(), DrawErr> {
+    let xr = crate::plot_axis::linear(xr.0, xr.1);
+    let yr = crate::plot_axis::linear(yr.0, yr.1);
     let root = SVGBackend::with_string(out, (640, 480)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut chart = ChartBuilder::on(&root)

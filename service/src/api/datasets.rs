@@ -31,6 +31,7 @@ pub struct UploadForm {
     file: Vec<Vec<u8>>,
     /// Optional: the expected dataset kind (`images`, `imu_log`, `video`); the content decides,
     /// and a mismatch is refused.
+    #[schema(value_type = Option<crate::store::DatasetKind>)]
     kind: Option<String>,
 }
 
@@ -85,6 +86,7 @@ pub async fn upload_dataset(
 #[into_params(parameter_in = Query)]
 pub struct PageQuery {
     /// Page size, 1–100 (default 20).
+    #[param(minimum = 1, maximum = 100)]
     pub limit: Option<u32>,
     /// `next_cursor` of the previous page.
     pub cursor: Option<Uuid>,
@@ -162,12 +164,10 @@ pub async fn delete_dataset(
                     .join(", ")
             ),
         )),
-        DeleteDataset::Deleted { orphan_blobs } => {
-            for sha in orphan_blobs {
-                if let Err(e) = state.blobs().delete(&sha).await {
-                    tracing::warn!(error = %e, %sha, "cannot delete blob of deleted dataset");
-                }
-            }
+        DeleteDataset::Deleted => {
+            // Its blobs were nominated for collection; collect what is due now (everything,
+            // with a zero grace period) rather than waiting for the maintenance task.
+            crate::blob_gc::collect(&state).await;
             Ok(StatusCode::NO_CONTENT)
         }
     }

@@ -18,7 +18,7 @@ use uuid::Uuid;
 use super::extract::{ApiJson, ApiPath, ApiQuery};
 use super::views::{ArtifactList, ArtifactView, JobKindView, JobPage, JobView};
 use crate::error::{ApiError, ApiResult, Problem};
-use crate::jobs::{find_kind, kinds};
+use crate::jobs::{kinds, resolve_kind};
 use crate::state::AppState;
 use crate::store::{CancelJob, CreateJob, JobFilter, JobStatus, NewJob};
 
@@ -46,9 +46,8 @@ pub struct CreateJobRequest {
     pub kind: String,
     /// Dataset id.
     pub dataset: Uuid,
-    /// Kind-specific parameters; omitted fields take their defaults. Schemas: `blur_score`
-    /// `BlurParams`, `camera_calibration` `CameraCalibParams`, `imu_noise` `ImuNoiseParams`,
-    /// `imu_intrinsics` `ImuIntrinsicsParams`, `imu_thermal` `ImuThermalParams`.
+    /// Kind-specific parameters; omitted fields take their defaults (the schema of each kind's
+    /// parameters is listed here from the job-kind registry when the spec is generated).
     #[serde(default = "empty_object")]
     #[schema(value_type = Object)]
     pub params: Value,
@@ -82,7 +81,7 @@ fn valid_name(s: &str) -> bool {
 #[utoipa::path(
     post, path = "/v1/jobs", tag = "jobs",
     request_body = CreateJobRequest,
-    params(("Idempotency-Key" = Option<String>, Header, description = "Client-chosen key (1–255 printable ASCII characters) making the request safe to retry")),
+    params(("Idempotency-Key" = Option<String>, Header, pattern = "^[!-~]{1,255}$", description = "Client-chosen key (1–255 visible ASCII characters, no spaces) making the request safe to retry")),
     responses(
         (status = 202, description = "Queued", body = JobView, headers(("Location" = String, description = "URL of the job"))),
         (status = 200, description = "Same Idempotency-Key and body as an earlier request: that job", body = JobView),
@@ -98,23 +97,8 @@ pub async fn create_job(
     headers: HeaderMap,
     ApiJson(req): ApiJson<CreateJobRequest>,
 ) -> ApiResult<Response> {
-    let key = match headers.get("idempotency-key") {
-        None => None,
-        Some(v) => {
-            let s = v.to_str().ok().filter(|s| !s.is_empty() && s.len() <= 255);
-            Some(
-                s.ok_or_else(|| {
-                    ApiError::new(
-                        "invalid_header",
-                        "Idempotency-Key must be 1–255 printable ASCII characters",
-                    )
-                    .with_field("Idempotency-Key")
-                })?
-                .to_string(),
-            )
-        }
-    };
-    let kind = find_kind(&req.kind).ok_or_else(|| {
+    let key = idempotency_key(&headers)?;
+    let kind = resolve_kind(state.config(), &req.kind).ok_or_else(|| {
         let known: Vec<&str> = kinds().iter().map(|k| k.name()).collect();
         ApiError::new(
             "unknown_job_kind",
@@ -126,26 +110,8 @@ pub async fn create_job(
         )
         .with_field("kind")
     })?;
-    if !req.params.is_object() {
-        return Err(
-            ApiError::new("invalid_param", "params must be a JSON object").with_field("params"),
-        );
-    }
-    for (name, v) in [("device", &req.device), ("sensor", &req.sensor)] {
-        if let Some(s) = v
-            && !valid_name(s)
-        {
-            return Err(ApiError::new(
-                "invalid_body",
-                format!("{name} must be 1–128 characters of letters, digits, `.`, `_`, `-`"),
-            )
-            .with_field(name));
-        }
-    }
-    if req.sensor.is_some() && req.device.is_none() {
-        return Err(ApiError::new("invalid_body", "sensor requires device").with_field("sensor"));
-    }
-    let params = kind.normalize_params(&req.params)?;
+    check_request(&req)?;
+    let params = kind.normalize_params(&req.params).map_err(ApiError::from)?;
     let dataset = state
         .store()
         .get_dataset(req.dataset)
@@ -193,11 +159,58 @@ pub async fn create_job(
         request_hash: Some(request_hash),
         now: crate::clock::now_ms(),
     };
-    match state
+    let created = state
         .store()
         .create_job(new, state.config().max_queued_jobs)
-        .await?
-    {
+        .await?;
+    created_response(&state, created, req.dataset)
+}
+
+/// The `Idempotency-Key` header, if any, checked.
+fn idempotency_key(headers: &HeaderMap) -> ApiResult<Option<String>> {
+    let Some(v) = headers.get("idempotency-key") else {
+        return Ok(None);
+    };
+    v.to_str()
+        .ok()
+        .filter(|s| (1..=255).contains(&s.len()) && s.bytes().all(|b| b.is_ascii_graphic()))
+        .map(|s| Some(s.to_string()))
+        .ok_or_else(|| {
+            ApiError::new(
+                "invalid_header",
+                "Idempotency-Key must be 1–255 visible ASCII characters (no spaces)",
+            )
+            .with_field("Idempotency-Key")
+        })
+}
+
+/// The parts of a job request that do not depend on its kind.
+fn check_request(req: &CreateJobRequest) -> ApiResult<()> {
+    if !req.params.is_object() {
+        return Err(
+            ApiError::new("invalid_param", "params must be a JSON object").with_field("params"),
+        );
+    }
+    for (name, v) in [("device", &req.device), ("sensor", &req.sensor)] {
+        if let Some(s) = v
+            && !valid_name(s)
+        {
+            return Err(ApiError::new(
+                "invalid_body",
+                format!("{name} must be 1–128 characters of letters, digits, `.`, `_`, `-`"),
+            )
+            .with_field(name));
+        }
+    }
+    if req.sensor.is_some() && req.device.is_none() {
+        return Err(ApiError::new("invalid_body", "sensor requires device").with_field("sensor"));
+    }
+    Ok(())
+}
+
+/// The response to what the store made of a job request.
+fn created_response(state: &AppState, created: CreateJob, dataset: Uuid) -> ApiResult<Response> {
+    match created {
         CreateJob::Created(job) => {
             state.wake_workers();
             metrics::counter!("caliper_jobs_created_total", "kind" => job.kind.clone())
@@ -240,7 +253,7 @@ pub async fn create_job(
         }
         CreateJob::UnknownDataset => Err(ApiError::new(
             "unknown_dataset",
-            format!("dataset {} does not exist", req.dataset),
+            format!("dataset {dataset} does not exist"),
         )
         .with_field("dataset")),
     }
@@ -264,6 +277,7 @@ pub struct JobQuery {
     /// Created before this time (RFC 3339).
     pub created_before: Option<String>,
     /// Page size, 1–100 (default 20).
+    #[param(minimum = 1, maximum = 100)]
     pub limit: Option<u32>,
     /// `next_cursor` of the previous page.
     pub cursor: Option<Uuid>,
@@ -435,57 +449,32 @@ pub async fn job_events(
     ApiPath(id): ApiPath<Uuid>,
 ) -> ApiResult<Sse<impl Stream<Item = Result<Event, Infallible>>>> {
     // Subscribe before reading the current state so no change falls between the two.
-    let mut rx = state.subscribe();
+    let bus = state.subscribe();
     let job = load_job(&state, id).await?;
-    let (tx, out) = tokio::sync::mpsc::channel::<Event>(16);
-    let st = state.clone();
-    tokio::spawn(async move {
-        let to_event = |kind: &str, status: JobStatus, progress: Option<Value>| {
-            let data = serde_json::json!({"id": id, "status": status, "progress": progress});
-            Event::default().event(kind).data(data.to_string())
-        };
-        let mut last_status = job.status;
-        if tx
-            .send(to_event("status", job.status, job.progress.clone()))
-            .await
-            .is_err()
-        {
-            return;
-        }
-        if job.status.is_terminal() {
-            return;
-        }
-        loop {
-            tokio::select! {
-                ev = rx.recv() => match ev {
-                    Ok(ev) if ev.id == id => {
-                        last_status = ev.status;
-                        if tx.send(to_event(ev.event, ev.status, ev.progress)).await.is_err() { return; }
-                        if ev.status.is_terminal() { return; }
-                    }
-                    Ok(_) => {}
-                    Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
-                    Err(_) => return,
-                },
-                // Fallback poll: changes made by another process, or events we lagged behind on.
-                _ = tokio::time::sleep(Duration::from_secs(2)) => {
-                    match st.store().get_job(id).await {
-                        Ok(Some(j)) if j.status != last_status => {
-                            last_status = j.status;
-                            if tx.send(to_event("status", j.status, j.progress.clone())).await.is_err() { return; }
-                            if j.status.is_terminal() { return; }
-                        }
-                        Ok(None) => return,
-                        _ => {}
-                    }
-                }
+    let rx = crate::job_watch::follow(&state, &job, bus);
+    // The stream owns only a receiver: when the client goes, the stream is dropped, and the
+    // shared watcher notices its last receiver is gone. Keep-alives (below) make a vanished
+    // client visible even when the job does not change.
+    let stream =
+        futures_util::stream::unfold((rx, true, false), |(mut rx, first, done)| async move {
+            if done {
+                return None;
             }
-        }
-    });
-    let stream = futures_util::stream::unfold(out, |mut rx| async move {
-        rx.recv().await.map(|e| (Ok::<_, Infallible>(e), rx))
-    });
-    Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
+            if !first && rx.changed().await.is_err() {
+                // The watcher ended (terminal status already sent, or the job is gone).
+                return None;
+            }
+            let ev = rx.borrow_and_update().clone()?;
+            let data =
+                serde_json::json!({"id": ev.id, "status": ev.status, "progress": ev.progress});
+            let terminal = ev.status.is_terminal();
+            Some((
+                Ok::<_, Infallible>(Event::default().event(ev.event).data(data.to_string())),
+                (rx, false, terminal),
+            ))
+        });
+    let every = Duration::from_secs(state.config().sse_keepalive_secs);
+    Ok(Sse::new(stream).keep_alive(KeepAlive::new().interval(every)))
 }
 
 /// The result document of a succeeded job (the same body as its device document revision,
@@ -498,6 +487,7 @@ pub async fn job_events(
     responses(
         (status = 200, description = "The document", body = Object, headers(("ETag" = String, description = "Quoted document etag"))),
         (status = 304, description = "Not modified"),
+        (status = 400, description = "Invalid query, or format not available for this document (`invalid_query`, `unsupported_format`)", body = Problem, content_type = "application/problem+json"),
         (status = 404, description = "No such job", body = Problem, content_type = "application/problem+json"),
         (status = 409, description = "The job has not succeeded (`result_not_ready`)", body = Problem, content_type = "application/problem+json"),
     )
@@ -574,12 +564,16 @@ pub async fn get_artifact(
         .get_artifact(id, &name)
         .await?
         .ok_or_else(|| ApiError::not_found(format!("artifact {name:?} of job {id}")))?;
-    let data = state
+    // Streamed: an artifact (a deblurred 16-bit TIFF) can be large; memory stays bounded.
+    let stream = state
         .blobs()
-        .get(&a.sha256)
+        .stream(&a.sha256)
         .await
         .map_err(ApiError::internal)?;
-    let mut resp = data.into_response();
+    let mut resp = axum::body::Body::from_stream(stream).into_response();
+    if let Ok(v) = HeaderValue::from_str(&a.size.to_string()) {
+        resp.headers_mut().insert(header::CONTENT_LENGTH, v);
+    }
     if let Ok(v) = HeaderValue::from_str(&a.media_type) {
         resp.headers_mut().insert(header::CONTENT_TYPE, v);
     }

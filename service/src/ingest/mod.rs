@@ -7,7 +7,6 @@
 
 pub mod archive;
 pub mod imu;
-pub mod sniff;
 
 use std::collections::HashSet;
 use std::io::Read;
@@ -22,7 +21,7 @@ use uuid::Uuid;
 use crate::error::{ApiError, ApiResult};
 use crate::state::AppState;
 use crate::store::{DatasetFile, DatasetKind, DatasetRecord};
-use sniff::{Sniffed, sniff};
+use caliper_core::io::{Sniffed, sniff};
 
 /// One received file, in a temporary file until validated.
 struct Received {
@@ -125,6 +124,55 @@ pub async fn ingest(state: &AppState, mut multipart: Multipart) -> ApiResult<Dat
     let (kind, files) = tokio::task::spawn_blocking(move || validate(&state2, received, kind_hint))
         .await
         .map_err(ApiError::internal)??;
+    // Pin the keys before storing: a GC pass that runs meanwhile then keeps a blob that
+    // already exists (and that we therefore do not write again) until the dataset row
+    // references it. Unpinned whatever happens below.
+    let token = Uuid::now_v7();
+    let shas: Vec<String> = files.iter().map(|(m, _)| m.sha256.clone()).collect();
+    let now = crate::clock::now_ms();
+    state
+        .store()
+        .pin_blobs(token, &shas, now + UPLOAD_PIN_TTL_MS)
+        .await?;
+    let stored = store_files(state, files).await;
+    let inserted = match stored {
+        Ok((stored, total_bytes)) => {
+            let ds = DatasetRecord {
+                id: Uuid::now_v7(),
+                kind,
+                created_at: crate::clock::now_ms(),
+                total_bytes,
+                sha256: crate::document::manifest_sha256(&stored),
+                files: stored,
+            };
+            state
+                .store()
+                .insert_dataset(&ds)
+                .await
+                .map(|()| ds)
+                .map_err(ApiError::from)
+        }
+        Err(e) => Err(e),
+    };
+    if let Err(e) = state
+        .store()
+        .unpin_blobs(token, crate::clock::now_ms())
+        .await
+    {
+        tracing::warn!(error = %e, "cannot drop upload pins; they expire");
+    }
+    let ds = inserted?;
+    Ok(ds)
+}
+
+/// How long an upload's pins last if the process dies before dropping them.
+const UPLOAD_PIN_TTL_MS: i64 = 24 * 3_600_000;
+
+/// Move validated files into the blob store (durably: see [`crate::blobs::Blobs::put_file`]).
+async fn store_files(
+    state: &AppState,
+    files: Vec<(DatasetFile, tempfile::NamedTempFile)>,
+) -> ApiResult<(Vec<DatasetFile>, u64)> {
     let mut stored = Vec::with_capacity(files.len());
     let mut total_bytes = 0;
     for (meta, tmpfile) in files {
@@ -136,16 +184,7 @@ pub async fn ingest(state: &AppState, mut multipart: Multipart) -> ApiResult<Dat
         total_bytes += meta.size;
         stored.push(meta);
     }
-    let ds = DatasetRecord {
-        id: Uuid::now_v7(),
-        kind,
-        created_at: crate::clock::now_ms(),
-        total_bytes,
-        sha256: crate::jobs::document::manifest_sha256(&stored),
-        files: stored,
-    };
-    state.store().insert_dataset(&ds).await?;
-    Ok(ds)
+    Ok((stored, total_bytes))
 }
 
 /// Keep the base name only, without control characters (names are labels, never paths).
@@ -192,22 +231,8 @@ fn validate(
         match s {
             s if s.is_image() => images.push(r),
             Sniffed::Zip => {
-                let entries = archive::unpack(
-                    r.file.path(),
-                    &r.name,
-                    &tmp,
-                    archive::ArchiveLimits {
-                        max_entries: cfg.max_files,
-                        max_total_bytes: cfg.max_archive_bytes,
-                        max_ratio: cfg.max_compression_ratio,
-                    },
-                )?;
-                for e in entries {
-                    if e.size == 0 {
-                        continue;
-                    }
-                    let inner = sniff(&read_head(e.file.path())?);
-                    if !inner.is_image() {
+                let check = |e: &archive::Entry| -> ApiResult<()> {
+                    if !sniff(&read_head(e.file.path())?).is_image() {
                         return Err(ApiError::new(
                             "unsupported_file",
                             format!(
@@ -215,6 +240,23 @@ fn validate(
                                 r.name, e.name
                             ),
                         ));
+                    }
+                    Ok(())
+                };
+                let entries = archive::unpack(
+                    r.file.path(),
+                    &r.name,
+                    &tmp,
+                    caliper_core::io::archive::ArchiveLimits {
+                        max_entries: cfg.max_files,
+                        max_total_bytes: cfg.max_archive_bytes,
+                        max_ratio: cfg.max_compression_ratio,
+                    },
+                    &check,
+                )?;
+                for e in entries {
+                    if e.size == 0 {
+                        continue;
                     }
                     images.push(Received {
                         name: e.name,
@@ -333,6 +375,14 @@ fn validate(
 
 /// Header within limits, then a full decode: a truncated or corrupt image is refused at
 /// upload instead of failing a job later.
+/// The largest file an image of `width` × `height` can honestly need: four 16-bit channels
+/// stored uncompressed, 10 % for the worst compressor's expansion, and 4 MiB for metadata
+/// (EXIF thumbnails, ICC profiles, XMP).
+pub fn max_encoded_size(width: u32, height: u32) -> u64 {
+    let raw = u64::from(width) * u64::from(height) * 8;
+    raw + raw / 10 + (4 << 20)
+}
+
 fn validate_image(
     im: &Received,
     limits: &caliper_core::io::ImageLimits,
@@ -348,6 +398,18 @@ fn validate_image(
         };
         ApiError::new(code, format!("{:?}: {msg}", im.name))
     })?;
+    // Refuse files far larger than their picture can need (a small image followed by
+    // hundreds of MB of junk, issue D6): the bytes are read whole below and by every job.
+    let most = max_encoded_size(info.width, info.height);
+    if im.size > most {
+        return Err(ApiError::new(
+            "trailing_data",
+            format!(
+                "{:?} is {} bytes, more than a {}×{} image can take ({most} bytes at most): it carries data after the image",
+                im.name, im.size, info.width, info.height
+            ),
+        ));
+    }
     let bytes = std::fs::read(im.file.path()).map_err(ApiError::internal)?;
     caliper_core::io::decode_gray8(&bytes, limits)
         .map_err(|e| ApiError::new("corrupt_image", format!("{:?}: {e}", im.name)))?;

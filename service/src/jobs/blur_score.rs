@@ -5,44 +5,68 @@ use caliper_core::Progress;
 use caliper_core::blur::{BlurParams, render_svg, score_images};
 use serde_json::{Value, json};
 
+use clap::Args;
+
 use super::{
-    Artifact, JobError, JobInput, JobKind, JobOutput, param_error, parse_params, stored_params,
+    Artifact, CliContext, JobError, JobInput, JobOutput, Kind, ParamError, RunError, to_value,
 };
-use crate::error::ApiError;
 use crate::store::DatasetKind;
 
 /// The `blur_score` job kind.
 pub struct BlurScore;
 
-impl JobKind for BlurScore {
-    fn name(&self) -> &'static str {
-        "blur_score"
+/// Flags of `caliper run blur-score`.
+#[derive(Debug, Clone, Args)]
+pub struct BlurScoreArgs {
+    /// Singular values in the numerator of β [default: 10].
+    #[arg(long)]
+    pub k: Option<usize>,
+    /// Blurred if the Laplacian variance is below this [default: 100].
+    #[arg(long)]
+    pub laplacian_threshold: Option<f64>,
+    /// Blurred if β is above this [default: 0.6].
+    #[arg(long)]
+    pub beta_threshold: Option<f64>,
+    /// How the two verdicts combine: either, both, laplacian, beta [default: either].
+    #[arg(long)]
+    pub rule: Option<String>,
+}
+
+impl Kind for BlurScore {
+    const NAME: &'static str = "blur_score";
+    const SCHEMA: &'static str = "caliper.blur_score/v1";
+    const DATASET: DatasetKind = DatasetKind::Images;
+    const DESCRIPTION: &'static str = "Score every image of a set for blur (Laplacian variance, singular-value feature), flag blurred ones and rank the set sharpest first.";
+    type Params = BlurParams;
+    type Cli = BlurScoreArgs;
+
+    fn check(p: &mut BlurParams) -> Result<(), ParamError> {
+        p.validate().map_err(|e| ParamError::from_core("", e))
     }
 
-    fn schema(&self) -> &'static str {
-        "caliper.blur_score/v1"
+    fn cli_params(a: &BlurScoreArgs, _: &CliContext<'_>) -> Result<Value, RunError> {
+        let mut params = serde_json::Map::new();
+        let mut put = |k: &str, v: Option<Value>| {
+            if let Some(v) = v {
+                params.insert(k.into(), v);
+            }
+        };
+        put("k", a.k.map(Value::from));
+        put(
+            "laplacian_threshold",
+            a.laplacian_threshold.map(Value::from),
+        );
+        put("beta_threshold", a.beta_threshold.map(Value::from));
+        put("rule", a.rule.clone().map(Value::from));
+        Ok(Value::Object(params))
     }
 
-    fn dataset_kind(&self) -> DatasetKind {
-        DatasetKind::Images
-    }
-
-    fn description(&self) -> &'static str {
-        "Score every image of a set for blur (Laplacian variance, singular-value feature), flag blurred ones and rank the set sharpest first."
-    }
-
-    fn params_schema(&self) -> Value {
-        serde_json::to_value(<BlurParams as utoipa::PartialSchema>::schema()).unwrap_or(Value::Null)
-    }
-
-    fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
-        let p: BlurParams = parse_params(params)?;
-        p.validate().map_err(param_error)?;
-        serde_json::to_value(&p).map_err(ApiError::internal)
-    }
-
-    fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
-        let params: BlurParams = stored_params(&input.params)?;
+    fn run(
+        &self,
+        params: BlurParams,
+        input: &JobInput,
+        progress: &dyn Progress,
+    ) -> Result<JobOutput, JobError> {
         let names: Vec<String> = input.files.iter().map(|f| f.name.clone()).collect();
         let limits = caliper_core::io::ImageLimits::default();
         let load = |i: usize| -> caliper_core::CoreResult<Vec<u8>> {
@@ -66,10 +90,7 @@ impl JobKind for BlurScore {
             "laplacian_variance": report.summary.laplacian,
             "svd_beta": report.summary.beta,
         });
-        let parameters = serde_json::to_value(&report).map_err(|e| JobError::Permanent {
-            code: "internal_error",
-            message: e.to_string(),
-        })?;
+        let parameters = to_value(&report)?;
         Ok(JobOutput {
             parameters,
             quality,

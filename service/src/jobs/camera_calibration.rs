@@ -15,10 +15,11 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 use utoipa::ToSchema;
 
+use clap::Args;
+
 use super::{
-    Artifact, JobError, JobInput, JobKind, JobOutput, param_error, parse_params, stored_params,
+    Artifact, CliContext, Export, JobError, JobInput, JobOutput, Kind, ParamError, RunError,
 };
-use crate::error::ApiError;
 use crate::store::DatasetKind;
 
 /// Unit of `board.square`; recorded in the document so extrinsics can be read in metres.
@@ -110,43 +111,86 @@ struct ImageOutcome {
 /// The `camera_calibration` job kind.
 pub struct CameraCalibration;
 
-impl JobKind for CameraCalibration {
-    fn name(&self) -> &'static str {
-        "camera_calibration"
-    }
+/// Flags of `caliper run camera-calibration`.
+#[derive(Debug, Clone, Args)]
+pub struct CameraCalibrationArgs {
+    /// Inner corners, COLSxROWS (e.g. 9x6).
+    #[arg(long)]
+    pub board: String,
+    /// Square side, in `--unit`.
+    #[arg(long)]
+    pub square: f64,
+    /// Unit of `--square`: m, cm, mm, in, squares [default: m].
+    #[arg(long)]
+    pub unit: Option<String>,
+    /// pinhole_radtan, kannala_brandt or double_sphere [default: pinhole_radtan].
+    #[arg(long)]
+    pub model: Option<String>,
+    /// Calibration options as JSON (see the `CalibOptions` schema), e.g. '{"fix_k3": true}'.
+    #[arg(long)]
+    pub options: Option<String>,
+}
 
-    fn schema(&self) -> &'static str {
-        "caliper.camera/v1"
-    }
+impl Kind for CameraCalibration {
+    const NAME: &'static str = "camera_calibration";
+    const SCHEMA: &'static str = "caliper.camera/v1";
+    const DATASET: DatasetKind = DatasetKind::Images;
+    const DESCRIPTION: &'static str = "Calibrate a camera (pinhole + Brown-Conrady, Kannala-Brandt fisheye, double sphere) from chessboard images, with per-parameter uncertainty, coverage and residual diagnostics.";
+    const EXPORTS: &'static [Export] = crate::exports::CAMERA_EXPORTS;
+    type Params = CameraCalibParams;
+    type Cli = CameraCalibrationArgs;
 
-    fn dataset_kind(&self) -> DatasetKind {
-        DatasetKind::Images
-    }
-
-    fn description(&self) -> &'static str {
-        "Calibrate a camera (pinhole + Brown-Conrady, Kannala-Brandt fisheye, double sphere) from chessboard images, with per-parameter uncertainty, coverage and residual diagnostics."
-    }
-
-    fn params_schema(&self) -> Value {
-        serde_json::to_value(<CameraCalibParams as utoipa::PartialSchema>::schema())
-            .unwrap_or(Value::Null)
-    }
-
-    fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
-        let p: CameraCalibParams = parse_params(params)?;
-        board_geometry(&p).validate().map_err(param_error)?;
-        p.options.validate(p.model).map_err(param_error)?;
+    fn check(p: &mut CameraCalibParams) -> Result<(), ParamError> {
+        board_geometry(p)
+            .validate()
+            .map_err(|e| ParamError::from_core("", e))?;
+        p.options
+            .validate(p.model)
+            .map_err(|e| ParamError::from_core("", e))?;
         if !(p.blur.min_relative_sharpness.is_finite()
             && (0.0..1.0).contains(&p.blur.min_relative_sharpness))
         {
-            return Err(ApiError::new("invalid_param", "must be in [0, 1)")
-                .with_field("params.blur.min_relative_sharpness"));
+            return Err(ParamError::new(
+                "blur.min_relative_sharpness",
+                "must be in [0, 1)",
+            ));
         }
-        serde_json::to_value(&p).map_err(ApiError::internal)
+        Ok(())
     }
 
-    fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
-        let p: CameraCalibParams = stored_params(&input.params)?;
+    fn cli_params(a: &CameraCalibrationArgs, _: &CliContext<'_>) -> Result<Value, RunError> {
+        let (cols, rows) = a
+            .board
+            .split_once(['x', 'X'])
+            .and_then(|(c, r)| {
+                Some((
+                    c.trim().parse::<usize>().ok()?,
+                    r.trim().parse::<usize>().ok()?,
+                ))
+            })
+            .ok_or_else(|| {
+                RunError::Input(format!("--board must be COLSxROWS, got {:?}", a.board))
+            })?;
+        let mut params = json!({"board": {"cols": cols, "rows": rows, "square": a.square}});
+        if let Some(u) = &a.unit {
+            params["board"]["unit"] = json!(u);
+        }
+        if let Some(m) = &a.model {
+            params["model"] = json!(m);
+        }
+        if let Some(o) = &a.options {
+            params["options"] = serde_json::from_str(o)
+                .map_err(|e| RunError::Input(format!("--options is not JSON: {e}")))?;
+        }
+        Ok(params)
+    }
+
+    fn run(
+        &self,
+        p: CameraCalibParams,
+        input: &JobInput,
+        progress: &dyn Progress,
+    ) -> Result<JobOutput, JobError> {
         let board = board_geometry(&p);
         let limits = ImageLimits::default();
         let total = input.files.len() as u64;

@@ -14,11 +14,14 @@ use caliper_core::io::ImageLimits;
 use image::{DynamicImage, ImageFormat};
 use serde_json::{Value, json};
 
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+
 use super::{
-    Artifact, JobError, JobInput, JobKind, JobOutput, base_name, param_error, parse_params,
-    schema_of, stem, stored_params,
+    Artifact, CliContext, JobError, JobInput, JobOutput, Kind, ParamError, RunError, base_name,
+    stem,
 };
-use crate::error::ApiError;
 use crate::store::{DatasetFile, DatasetKind};
 
 /// Widest before/after preview, px.
@@ -90,37 +93,36 @@ fn preview(before: &DynamicImage, after: &DynamicImage) -> Result<Vec<u8>, JobEr
     Ok(out.into_inner())
 }
 
-impl JobKind for Deblur {
-    fn name(&self) -> &'static str {
-        "deblur"
-    }
-    fn schema(&self) -> &'static str {
-        "caliper.deblur/v1"
-    }
-    fn dataset_kind(&self) -> DatasetKind {
-        DatasetKind::Images
-    }
-    fn description(&self) -> &'static str {
-        "Deblur images: Wiener, Richardson-Lucy or TV with a known kernel, blind kernel estimation (L0 prior, coarse to fine), or a kernel drawn from a gyro trace; same format and bit depth out, with the kernel."
-    }
-    fn params_schema(&self) -> Value {
-        schema_of::<DeblurParams>()
-    }
-    fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
-        let mut p: DeblurParams = parse_params(params)?;
-        p.validate().map_err(param_error)?;
+impl Kind for Deblur {
+    const NAME: &'static str = "deblur";
+    const SCHEMA: &'static str = "caliper.deblur/v1";
+    const DATASET: DatasetKind = DatasetKind::Images;
+    const DESCRIPTION: &'static str = "Deblur images: Wiener, Richardson-Lucy or TV with a known kernel, blind kernel estimation (L0 prior, coarse to fine), or a kernel drawn from a gyro trace; same format and bit depth out, with the kernel.";
+    type Params = DeblurParams;
+    type Cli = DeblurArgs;
+
+    fn check(p: &mut DeblurParams) -> Result<(), ParamError> {
+        p.validate().map_err(|e| ParamError::from_core("", e))?;
         // Store the kernel normalised (sum 1), so the job and its document use the same one.
         if let Some(k) = p.psf.take() {
             p.psf = Some(
-                caliper_core::deconv::Psf::from_weights(k.width, k.height, k.data).map_err(
-                    |e| param_error(caliper_core::CoreError::param("psf", e.to_string())),
-                )?,
+                caliper_core::deconv::Psf::from_weights(k.width, k.height, k.data)
+                    .map_err(|e| ParamError::new("psf", e.to_string()))?,
             );
         }
-        serde_json::to_value(&p).map_err(ApiError::internal)
+        Ok(())
     }
-    fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
-        let p: DeblurParams = stored_params(&input.params)?;
+
+    fn cli_params(a: &DeblurArgs, _: &CliContext<'_>) -> Result<Value, RunError> {
+        params_from_flags(a)
+    }
+
+    fn run(
+        &self,
+        p: DeblurParams,
+        input: &JobInput,
+        progress: &dyn Progress,
+    ) -> Result<JobOutput, JobError> {
         let mut artifacts = Vec::new();
         let mut images = Vec::new();
         let total = input.files.len() as u64;
@@ -214,4 +216,168 @@ fn unique_name(name: &str, seen: &mut std::collections::HashSet<String>) -> Stri
         }
     }
     name.to_string()
+}
+
+/// Flags of `caliper run deblur`.
+#[derive(Debug, Clone, Args)]
+pub struct DeblurArgs {
+    /// wiener, richardson_lucy, tv, blind, blind_rl or gyro [default: tv].
+    #[arg(long)]
+    pub method: Option<String>,
+    /// Kernel file: a text matrix (as `numpy.savetxt` writes), JSON ({width, height, data}) or
+    /// a grey PNG.
+    #[arg(long)]
+    pub psf: Option<PathBuf>,
+    /// Iterations (RL, TV, alternating RL).
+    #[arg(long)]
+    pub iterations: Option<usize>,
+    /// Wiener noise-to-signal ratio [default: estimated].
+    #[arg(long)]
+    pub nsr: Option<f64>,
+    /// TV weight [default: from the estimated noise].
+    #[arg(long)]
+    pub tv_lambda: Option<f64>,
+    /// Kernel side for the blind methods (odd).
+    #[arg(long)]
+    pub kernel_size: Option<usize>,
+    /// Gyro trace for `--method gyro`: JSON with `samples` [{t, w: [x, y, z]}],
+    /// `exposure_start_s`, `exposure_s` and (unless `--camera` gives them) fx, fy, cx, cy; or an
+    /// IMU log (`.csv` / `.csv.gz`, the `imu-noise` formats: ns timestamps, gyro in rad/s),
+    /// which then needs `--exposure-start-ns`, `--exposure-ms` and `--camera`.
+    #[arg(long)]
+    pub gyro: Option<PathBuf>,
+    /// With an IMU log as `--gyro`: start of the exposure on the log's clock, ns.
+    #[arg(long)]
+    pub exposure_start_ns: Option<i64>,
+    /// With an IMU log as `--gyro`: exposure time, ms.
+    #[arg(long)]
+    pub exposure_ms: Option<f64>,
+    /// A `caliper.camera/v1` document whose intrinsics complete `--gyro`.
+    #[arg(long)]
+    pub camera: Option<PathBuf>,
+    /// With `--gyro`: restore on a grid of NXxNY cells, each with the kernel drawn at its
+    /// centre (blur that varies across the frame), e.g. `8x8`.
+    #[arg(long, value_parser = parse_grid)]
+    pub gyro_grid: Option<[usize; 2]>,
+}
+
+/// `NXxNY` → `[nx, ny]`.
+fn parse_grid(s: &str) -> Result<[usize; 2], String> {
+    let (a, b) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("{s:?}: expected NXxNY, e.g. 8x8"))?;
+    let n = |v: &str| {
+        v.trim()
+            .parse::<usize>()
+            .map_err(|_| format!("{s:?}: {v:?} is not a cell count"))
+    };
+    Ok([n(a)?, n(b)?])
+}
+
+/// The parameters object of `caliper run deblur`'s flags (kernel and trace files read here).
+fn params_from_flags(a: &DeblurArgs) -> Result<Value, RunError> {
+    use caliper_core::deconv::Psf;
+    let mut params = json!({});
+    if let Some(m) = &a.method {
+        params["method"] = json!(m);
+    }
+    if let Some(path) = &a.psf {
+        let bytes = std::fs::read(path)?;
+        let bad = |e: caliper_core::CoreError| RunError::Input(format!("{}: {e}", path.display()));
+        let head = &bytes[..bytes.len().min(64)];
+        let psf = if caliper_core::io::sniff(head).is_image() {
+            let limits = caliper_core::io::ImageLimits::default();
+            let g = caliper_core::io::decode_gray8(&bytes, &limits).map_err(bad)?;
+            Psf::from_gray(&g).map_err(bad)?
+        } else {
+            let text = String::from_utf8(bytes)
+                .map_err(|_| RunError::Input(format!("{} is not text", path.display())))?;
+            if text.trim_start().starts_with('{') {
+                // `{width, height, data}` (the API's form) or `{kernel: [[…]]}`.
+                match serde_json::from_str::<Psf>(&text) {
+                    Ok(k) => Psf::from_weights(k.width, k.height, k.data).map_err(bad)?,
+                    Err(_) => Psf::parse_json(&text).map_err(bad)?,
+                }
+            } else {
+                Psf::parse_text(&text).map_err(bad)?
+            }
+        };
+        params["psf"] = serde_json::to_value(&psf).map_err(|e| RunError::Job(e.to_string()))?;
+    }
+    for (key, v) in [
+        ("iterations", a.iterations.map(|v| json!(v))),
+        ("nsr", a.nsr.map(|v| json!(v))),
+        ("tv_lambda", a.tv_lambda.map(|v| json!(v))),
+        ("kernel_size", a.kernel_size.map(|v| json!(v))),
+        ("gyro_grid", a.gyro_grid.map(|v| json!(v))),
+    ] {
+        if let Some(v) = v {
+            params[key] = v;
+        }
+    }
+    if let Some(path) = &a.gyro {
+        let name = path.to_string_lossy().to_ascii_lowercase();
+        let mut g: Value = if name.ends_with(".csv") || name.ends_with(".csv.gz") {
+            if a.camera.is_none() {
+                return Err(RunError::Input(
+                    "an IMU log as --gyro needs --camera for the intrinsics".into(),
+                ));
+            }
+            let (Some(start), Some(ms)) = (a.exposure_start_ns, a.exposure_ms) else {
+                return Err(RunError::Input(
+                    "an IMU log as --gyro needs --exposure-start-ns and --exposure-ms".into(),
+                ));
+            };
+            gyro_from_log(path, start, ms * 1e-3)?
+        } else {
+            let text = std::fs::read_to_string(path)?;
+            serde_json::from_str(&text)
+                .map_err(|e| RunError::Input(format!("{} is not JSON: {e}", path.display())))?
+        };
+        if let Some(cam) = &a.camera {
+            let text = std::fs::read_to_string(cam)?;
+            let doc: Value = serde_json::from_str(&text)
+                .map_err(|e| RunError::Input(format!("{} is not JSON: {e}", cam.display())))?;
+            let intr = doc
+                .pointer("/parameters/camera")
+                .or_else(|| doc.get("camera"))
+                .ok_or_else(|| {
+                    RunError::Input(format!(
+                        "{} is not a caliper.camera/v1 document (no parameters.camera)",
+                        cam.display()
+                    ))
+                })?;
+            for k in ["fx", "fy", "cx", "cy"] {
+                let v = intr.get(k).cloned().ok_or_else(|| {
+                    RunError::Input(format!("{}: the camera has no {k}", cam.display()))
+                })?;
+                g[k] = v;
+            }
+        }
+        params["gyro"] = g;
+    }
+    Ok(params)
+}
+
+/// The gyro trace of an IMU log file (CSV or gzip) over one exposure, as the `gyro` object.
+fn gyro_from_log(path: &Path, start_ns: i64, exposure_s: f64) -> Result<Value, RunError> {
+    let mut f = std::fs::File::open(path)?;
+    let mut head = [0u8; 2];
+    let n = std::io::Read::read(&mut f, &mut head)?;
+    let f = std::fs::File::open(path)?;
+    let reader: Box<dyn std::io::BufRead> = if n == 2 && head == [0x1f, 0x8b] {
+        Box::new(std::io::BufReader::new(flate2::read::MultiGzDecoder::new(
+            f,
+        )))
+    } else {
+        Box::new(std::io::BufReader::new(f))
+    };
+    let samples = caliper_core::deconv::gyro_trace_from_log(
+        reader,
+        start_ns,
+        exposure_s,
+        &caliper_core::NoProgress,
+    )
+    .map_err(|e| RunError::Input(format!("{}: {e}", path.display())))?;
+    Ok(json!({"samples": samples, "exposure_start_s": 0.0, "exposure_s": exposure_s}))
 }

@@ -38,13 +38,3 @@ pub fn build(kind: &dyn JobKind, out: &JobOutput, prov: &Provenance<'_>, now_ms:
         "artifacts": out.artifacts.iter().map(|a| json!({"name": a.name, "media_type": a.media_type})).collect::<Vec<_>>(),
     })
 }
-
-/// SHA-256 over `sha256  name` lines in dataset order (the `sha256sum` layout): identifies
-/// a dataset's content independently of where it is stored.
-pub fn manifest_sha256(files: &[DatasetFile]) -> String {
-    let mut manifest = String::new();
-    for f in files {
-        manifest.push_str(&format!("{}  {}\n", f.sha256, f.name));
-    }
-    crate::document::sha256_hex(manifest.as_bytes())
-}

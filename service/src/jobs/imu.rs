@@ -13,10 +13,9 @@ use caliper_core::imu::{
 use serde_json::{Value, json};
 
 use super::{
-    Artifact, JobError, JobInput, JobKind, JobOutput, param_error, parse_params, schema_of,
-    stored_params, to_value,
+    Artifact, CliContext, Export, JobError, JobInput, JobOutput, JsonParams, Kind, ParamError,
+    RunError, to_value,
 };
-use crate::error::ApiError;
 use crate::store::DatasetKind;
 
 /// Open the dataset's log for streaming, decompressing gzip.
@@ -38,29 +37,31 @@ fn open_log(input: &JobInput) -> Result<Box<dyn BufRead>, JobError> {
 /// `imu_noise`: Allan deviation and the noise model of a static log.
 pub struct ImuNoise;
 
-impl JobKind for ImuNoise {
-    fn name(&self) -> &'static str {
-        "imu_noise"
+impl Kind for ImuNoise {
+    const NAME: &'static str = "imu_noise";
+    const SCHEMA: &'static str = "caliper.imu_noise/v1";
+    const DATASET: DatasetKind = DatasetKind::ImuLog;
+    const DESCRIPTION: &'static str = "Allan deviation of a static IMU log: noise density N, bias instability B and random walk K per axis, fitted by weighted NNLS, with Kalibr imu.yaml values.";
+    const EXPORTS: &'static [Export] = &[Export {
+        format: "kalibr-yaml",
+        media_type: "application/yaml",
+        render: crate::exports::kalibr_imu_yaml,
+    }];
+    type Params = ImuNoiseParams;
+    type Cli = JsonParams;
+
+    fn check(p: &mut ImuNoiseParams) -> Result<(), ParamError> {
+        p.validate().map_err(|e| ParamError::from_core("", e))
     }
-    fn schema(&self) -> &'static str {
-        "caliper.imu_noise/v1"
+    fn cli_params(a: &JsonParams, _: &CliContext<'_>) -> Result<Value, RunError> {
+        a.value()
     }
-    fn dataset_kind(&self) -> DatasetKind {
-        DatasetKind::ImuLog
-    }
-    fn description(&self) -> &'static str {
-        "Allan deviation of a static IMU log: noise density N, bias instability B and random walk K per axis, fitted by weighted NNLS, with Kalibr imu.yaml values."
-    }
-    fn params_schema(&self) -> Value {
-        schema_of::<ImuNoiseParams>()
-    }
-    fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
-        let p: ImuNoiseParams = parse_params(params)?;
-        p.validate().map_err(param_error)?;
-        serde_json::to_value(&p).map_err(ApiError::internal)
-    }
-    fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
-        let p: ImuNoiseParams = stored_params(&input.params)?;
+    fn run(
+        &self,
+        p: ImuNoiseParams,
+        input: &JobInput,
+        progress: &dyn Progress,
+    ) -> Result<JobOutput, JobError> {
         let report = imu_noise(open_log(input)?, &p, progress)?;
         let quality = json!({
             "rate_hz": report.rate_hz,
@@ -80,29 +81,26 @@ impl JobKind for ImuNoise {
 /// `imu_intrinsics`: multi-position accelerometer and gyroscope calibration.
 pub struct ImuIntrinsics;
 
-impl JobKind for ImuIntrinsics {
-    fn name(&self) -> &'static str {
-        "imu_intrinsics"
+impl Kind for ImuIntrinsics {
+    const NAME: &'static str = "imu_intrinsics";
+    const SCHEMA: &'static str = "caliper.imu_intrinsics/v1";
+    const DATASET: DatasetKind = DatasetKind::ImuLog;
+    const DESCRIPTION: &'static str = "Multi-position calibration (Tedaldi et al. 2014): accelerometer and gyroscope scale, misalignment and bias from static poses.";
+    type Params = ImuIntrinsicsParams;
+    type Cli = JsonParams;
+
+    fn check(p: &mut ImuIntrinsicsParams) -> Result<(), ParamError> {
+        p.validate().map_err(|e| ParamError::from_core("", e))
     }
-    fn schema(&self) -> &'static str {
-        "caliper.imu_intrinsics/v1"
+    fn cli_params(a: &JsonParams, _: &CliContext<'_>) -> Result<Value, RunError> {
+        a.value()
     }
-    fn dataset_kind(&self) -> DatasetKind {
-        DatasetKind::ImuLog
-    }
-    fn description(&self) -> &'static str {
-        "Multi-position calibration (Tedaldi et al. 2014): accelerometer and gyroscope scale, misalignment and bias from static poses."
-    }
-    fn params_schema(&self) -> Value {
-        schema_of::<ImuIntrinsicsParams>()
-    }
-    fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
-        let p: ImuIntrinsicsParams = parse_params(params)?;
-        p.validate().map_err(param_error)?;
-        serde_json::to_value(&p).map_err(ApiError::internal)
-    }
-    fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
-        let p: ImuIntrinsicsParams = stored_params(&input.params)?;
+    fn run(
+        &self,
+        p: ImuIntrinsicsParams,
+        input: &JobInput,
+        progress: &dyn Progress,
+    ) -> Result<JobOutput, JobError> {
         let report = imu_intrinsics(open_log(input)?, &p, progress)?;
         let quality = json!({
             "usable_poses": report.usable_poses,
@@ -121,29 +119,26 @@ impl JobKind for ImuIntrinsics {
 /// `imu_thermal`: bias against temperature.
 pub struct ImuThermal;
 
-impl JobKind for ImuThermal {
-    fn name(&self) -> &'static str {
-        "imu_thermal"
+impl Kind for ImuThermal {
+    const NAME: &'static str = "imu_thermal";
+    const SCHEMA: &'static str = "caliper.imu_thermal/v1";
+    const DATASET: DatasetKind = DatasetKind::ImuLog;
+    const DESCRIPTION: &'static str = "Per-axis bias as a polynomial in (T − T_ref) over the recorded temperature range (PX4 convention), with residuals.";
+    type Params = ImuThermalParams;
+    type Cli = JsonParams;
+
+    fn check(p: &mut ImuThermalParams) -> Result<(), ParamError> {
+        p.validate().map_err(|e| ParamError::from_core("", e))
     }
-    fn schema(&self) -> &'static str {
-        "caliper.imu_thermal/v1"
+    fn cli_params(a: &JsonParams, _: &CliContext<'_>) -> Result<Value, RunError> {
+        a.value()
     }
-    fn dataset_kind(&self) -> DatasetKind {
-        DatasetKind::ImuLog
-    }
-    fn description(&self) -> &'static str {
-        "Per-axis bias as a polynomial in (T − T_ref) over the recorded temperature range (PX4 convention), with residuals."
-    }
-    fn params_schema(&self) -> Value {
-        schema_of::<ImuThermalParams>()
-    }
-    fn normalize_params(&self, params: &Value) -> Result<Value, ApiError> {
-        let p: ImuThermalParams = parse_params(params)?;
-        p.validate().map_err(param_error)?;
-        serde_json::to_value(&p).map_err(ApiError::internal)
-    }
-    fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
-        let p: ImuThermalParams = stored_params(&input.params)?;
+    fn run(
+        &self,
+        p: ImuThermalParams,
+        input: &JobInput,
+        progress: &dyn Progress,
+    ) -> Result<JobOutput, JobError> {
         let report = imu_thermal(open_log(input)?, &p, progress)?;
         let quality = json!({
             "degree": report.degree,

@@ -7,19 +7,25 @@
 pub mod blur_score;
 pub mod camera_calibration;
 pub mod deblur;
+mod debug;
 pub mod document;
 pub mod imu;
+pub mod kind;
 pub mod photometric;
 pub mod worker;
 
 use std::sync::Arc;
 
 use bytes::Bytes;
-use caliper_core::{CoreError, Progress};
+use caliper_core::CoreError;
 use serde_json::Value;
 
-use crate::error::ApiError;
-use crate::store::{DatasetFile, DatasetKind};
+pub use kind::{
+    CliContext, Export, ExportError, JobKind, JsonParams, Kind, ParamError, Registered, RunError,
+    parse_params,
+};
+
+use crate::store::DatasetFile;
 
 /// Reads the bytes of a dataset file (from the blob store, or a local path offline).
 pub type FileLoader = Arc<dyn Fn(&DatasetFile) -> std::io::Result<Vec<u8>> + Send + Sync>;
@@ -98,39 +104,22 @@ impl From<CoreError> for JobError {
     }
 }
 
-/// One kind of job.
-pub trait JobKind: Send + Sync + 'static {
-    /// The kind's name in the API (`blur_score`).
-    fn name(&self) -> &'static str;
-    /// The document schema it writes (`caliper.blur_score/v1`).
-    fn schema(&self) -> &'static str;
-    /// What kind of dataset it reads.
-    fn dataset_kind(&self) -> DatasetKind;
-    /// One-line description for `GET /v1/job-kinds`.
-    fn description(&self) -> &'static str;
-    /// JSON Schema of the parameters.
-    fn params_schema(&self) -> Value;
-    /// Check parameters and fill in defaults; errors name the offending field.
-    fn normalize_params(&self, params: &Value) -> Result<Value, ApiError>;
-    /// Run on the input (blocking; call from a blocking thread).
-    fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError>;
-}
-
-/// Every job kind this build knows.
+/// Every job kind this build knows: the one list that the router, the OpenAPI components,
+/// `GET /v1/job-kinds`, `caliper run` and the export dispatch read.
 pub fn kinds() -> &'static [&'static dyn JobKind] {
-    static KINDS: [&dyn JobKind; 10] = [
-        &blur_score::BlurScore,
-        &camera_calibration::CameraCalibration,
-        &imu::ImuNoise,
-        &imu::ImuIntrinsics,
-        &imu::ImuThermal,
-        &photometric::PhotometricResponse,
-        &photometric::Vignetting,
-        &photometric::PhotometricOnline,
-        &photometric::PhotometricCorrect,
-        &deblur::Deblur,
+    static KINDS: &[&dyn JobKind] = &[
+        &Registered(blur_score::BlurScore),
+        &Registered(camera_calibration::CameraCalibration),
+        &Registered(imu::ImuNoise),
+        &Registered(imu::ImuIntrinsics),
+        &Registered(imu::ImuThermal),
+        &Registered(photometric::PhotometricResponse),
+        &Registered(photometric::Vignetting),
+        &Registered(photometric::PhotometricOnline),
+        &Registered(photometric::PhotometricCorrect),
+        &Registered(deblur::Deblur),
     ];
-    &KINDS
+    KINDS
 }
 
 /// Find a kind by name.
@@ -138,27 +127,24 @@ pub fn find_kind(name: &str) -> Option<&'static dyn JobKind> {
     kinds().iter().copied().find(|k| k.name() == name)
 }
 
-/// Deserialize `params` into `T`, reporting the path of the offending field.
-pub fn parse_params<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T, ApiError> {
-    let text = params.to_string();
-    let mut de = serde_json::Deserializer::from_str(&text);
-    serde_path_to_error::deserialize(&mut de).map_err(|e| {
-        let path = e.path().to_string();
-        let field = if path == "." || path.is_empty() {
-            "params".to_string()
-        } else {
-            format!("params.{path}")
-        };
-        ApiError::new("invalid_param", e.inner().to_string()).with_field(field)
+/// Find a kind by name for this server: the public registry, plus the test-only kinds when
+/// `config.debug_job_kinds` is set.
+pub fn resolve_kind(config: &crate::config::Config, name: &str) -> Option<&'static dyn JobKind> {
+    static DEBUG: &[&dyn JobKind] = &[&Registered(debug::DebugHang)];
+    find_kind(name).or_else(|| {
+        config
+            .debug_job_kinds
+            .then(|| DEBUG.iter().copied().find(|k| k.name() == name))
+            .flatten()
     })
 }
 
-/// Read the normalised parameters stored on a job.
-pub fn stored_params<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T, JobError> {
-    serde_json::from_value(params.clone()).map_err(|e| JobError::Permanent {
-        code: "invalid_param",
-        message: e.to_string(),
-    })
+/// The export formats offered for documents of `schema`.
+pub fn exports_for(schema: &str) -> &'static [Export] {
+    kinds()
+        .iter()
+        .find(|k| k.schema() == schema)
+        .map_or(&[], |k| k.exports())
 }
 
 /// Serialise a job result into the document's `parameters`.
@@ -167,11 +153,6 @@ pub fn to_value<T: serde::Serialize>(v: &T) -> Result<Value, JobError> {
         code: "internal_error",
         message: e.to_string(),
     })
-}
-
-/// JSON Schema of a parameter type, for `GET /v1/job-kinds`.
-pub fn schema_of<T: utoipa::PartialSchema>() -> Value {
-    serde_json::to_value(T::schema()).unwrap_or(Value::Null)
 }
 
 /// File name without the archive folders (`a/b/x.png` → `x.png`).
@@ -183,14 +164,4 @@ pub fn base_name(name: &str) -> &str {
 pub fn stem(name: &str) -> &str {
     let b = base_name(name);
     b.rsplit_once('.').map_or(b, |(s, _)| s)
-}
-
-/// Map a core validation error to an API error on `params.<field>`.
-pub fn param_error(e: CoreError) -> ApiError {
-    match e {
-        CoreError::InvalidParam { field, message } => {
-            ApiError::new("invalid_param", message).with_field(format!("params.{field}"))
-        }
-        other => ApiError::new("invalid_param", other.to_string()).with_field("params"),
-    }
 }

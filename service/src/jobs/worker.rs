@@ -4,7 +4,14 @@
 //! renews the lease by heartbeat every `heartbeat_ms` while flushing progress and picking up
 //! cancel requests. Every write is fenced by (lease owner, attempt): if the lease was lost
 //! (another process re-claimed the job after expiry) the worker stops and writes nothing.
-//! A maintenance task re-queues expired leases and prunes finished jobs.
+//! A maintenance task re-queues expired leases, prunes finished jobs and collects blobs.
+//!
+//! Job bodies run on threads of their own and are *abandonable*: a job asked to stop (cancel,
+//! time limit, shutdown) that has not returned within `job_abandon_secs` (half a second at
+//! shutdown) is failed, canceled or re-queued without it; its thread is left to finish or to
+//! die with the process, and the worker takes the next job. The time limit is enforced here
+//! as well as through the job's own cancellation checks, so a body that never checks cannot
+//! outlive it (issue D1).
 
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
@@ -17,7 +24,7 @@ use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 use uuid::Uuid;
 
-use super::{JobError, JobInput, document, find_kind};
+use super::{JobError, JobInput, document, resolve_kind};
 use crate::clock::now_ms;
 use crate::state::{AppState, JobEvent};
 use crate::store::{ArtifactRecord, Finish, Heartbeat, JobRecord, JobStatus, NewDocument};
@@ -44,6 +51,16 @@ impl StopReason {
         }
     }
 }
+
+/// Life of a job thread, shared by the thread and its worker: whoever moves it away from
+/// `RUNNING` first decides whether the result is taken or the thread abandoned.
+const THREAD_RUNNING: u8 = 0;
+const THREAD_DONE: u8 = 1;
+const THREAD_ABANDONED: u8 = 2;
+
+/// How long a job asked to stop by a shutdown may take before its thread is abandoned (the
+/// shutdown grace period has already passed by then).
+const SHUTDOWN_ABANDON: Duration = Duration::from_millis(500);
 
 /// Progress and cancellation seen by the core algorithm.
 struct JobProgress {
@@ -140,6 +157,7 @@ async fn worker_loop(state: AppState, owner: Uuid, n: usize, sd: Shutdown) {
 async fn maintenance_loop(state: AppState, shutdown: CancellationToken) {
     let period = Duration::from_millis((state.config().lease_secs * 1000 / 2).max(200));
     let mut last_prune = Instant::now() - Duration::from_secs(3600);
+    let mut last_gc = Instant::now();
     loop {
         tokio::select! {
             _ = shutdown.cancelled() => break,
@@ -156,6 +174,9 @@ async fn maintenance_loop(state: AppState, shutdown: CancellationToken) {
         if last_prune.elapsed() >= Duration::from_secs(600) {
             last_prune = Instant::now();
             prune(&state).await;
+        } else if last_gc.elapsed() >= Duration::from_secs(30) {
+            last_gc = Instant::now();
+            crate::blob_gc::collect(&state).await;
         }
         if let Ok((q, r)) = state.store().queue_depth().await {
             metrics::gauge!("caliper_jobs_queued").set(q as f64);
@@ -164,20 +185,19 @@ async fn maintenance_loop(state: AppState, shutdown: CancellationToken) {
     }
 }
 
-/// Delete finished jobs past retention and the artifact blobs nobody references any more.
+/// Delete finished jobs past retention (documents keep the jobs and artifacts they cite),
+/// then collect the blobs nobody references any more.
 pub async fn prune(state: &AppState) {
     let before = now_ms() - state.config().retention_days as i64 * 86_400_000;
     match state.store().prune_jobs(before).await {
-        Ok(orphans) => {
+        Ok(0) => {}
+        Ok(n) => {
+            tracing::info!(jobs = n, "pruned finished jobs past retention");
             state.clear_job_cache();
-            for sha in orphans {
-                if let Err(e) = state.blobs().delete(&sha).await {
-                    tracing::warn!(error = %e, "cannot delete pruned artifact blob");
-                }
-            }
         }
         Err(e) => tracing::warn!(error = %e, "pruning failed"),
     }
+    crate::blob_gc::collect(state).await;
 }
 
 /// Capped exponential backoff with up to 25 % jitter.
@@ -202,6 +222,25 @@ fn event(state: &AppState, id: Uuid, status: JobStatus, progress: Option<Value>)
 }
 
 async fn run_job(state: &AppState, owner: Uuid, job: JobRecord, shutdown: &CancellationToken) {
+    let token = pin_token(&job);
+    let id = job.id;
+    run_attempt(state, owner, job, shutdown).await;
+    // The artifacts (if any) are referenced now, or were never recorded: GC decides.
+    if let Err(e) = state.store().unpin_blobs(token, now_ms()).await {
+        tracing::warn!(job = %id, error = %e, "cannot drop artifact pins; they expire");
+    }
+}
+
+/// The pin token of a job attempt's artifacts.
+fn pin_token(job: &JobRecord) -> Uuid {
+    // Distinct per attempt, so that a late attempt cannot drop a newer one's pins.
+    Uuid::from_u128(job.id.as_u128() ^ (u128::from(job.attempt) << 64))
+}
+
+/// How long pins of a writer last if it never drops them (a crash); far longer than any write.
+const PIN_TTL_MS: i64 = 24 * 3_600_000;
+
+async fn run_attempt(state: &AppState, owner: Uuid, job: JobRecord, shutdown: &CancellationToken) {
     let started = Instant::now();
     let id = job.id;
     let attempt = job.attempt;
@@ -215,6 +254,7 @@ async fn run_job(state: &AppState, owner: Uuid, job: JobRecord, shutdown: &Cance
                 Finish::Failed { .. } => "failed",
                 Finish::Retry { .. } => "retry",
                 Finish::Canceled => "canceled",
+                Finish::Requeue { .. } => "requeued",
             };
             (finish, label)
         }
@@ -266,7 +306,7 @@ async fn execute(
     job: &JobRecord,
     shutdown: &CancellationToken,
 ) -> Outcome {
-    let Some(kind) = find_kind(&job.kind) else {
+    let Some(kind) = resolve_kind(state.config(), &job.kind) else {
         return Outcome::Done(permanent(
             "unknown_job_kind",
             format!("this server does not know job kind {:?}", job.kind),
@@ -291,9 +331,8 @@ async fn execute(
         files: dataset.files.clone(),
         params: job.params.clone(),
         load: Arc::new(move |f| {
-            handle
-                .block_on(blobs.get(&f.sha256))
-                .map(|b| b.to_vec())
+            blobs
+                .read_blocking(&f.sha256, &handle)
                 .map_err(std::io::Error::other)
         }),
         open: Arc::new(move |f| {
@@ -316,17 +355,75 @@ async fn execute(
         latest: latest.clone(),
     });
     state.register_cancel(job.id, flag.clone());
+    let deadline = tokio::time::Instant::from_std(progress.deadline);
     let prog = progress.clone();
-    let mut task = tokio::task::spawn_blocking(move || kind.run(&input, prog.as_ref()));
+    let life = Arc::new(AtomicU8::new(THREAD_RUNNING));
+    let (tx, mut rx) = tokio::sync::oneshot::channel();
+    let thread_life = life.clone();
+    // A plain thread, not `spawn_blocking`: a job body that never returns must be abandonable
+    // without holding up the runtime's shutdown (tokio waits for its blocking pool).
+    let spawned = std::thread::Builder::new()
+        .name(format!("job-{}", job.kind))
+        .spawn(move || {
+            let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                kind.run(&input, prog.as_ref())
+            }));
+            let _ = tx.send(r);
+            if thread_life
+                .compare_exchange(
+                    THREAD_RUNNING,
+                    THREAD_DONE,
+                    Ordering::SeqCst,
+                    Ordering::SeqCst,
+                )
+                .is_err()
+            {
+                // The worker gave up on this thread long ago; it has finally returned.
+                metrics::gauge!("caliper_job_threads_abandoned").decrement(1.0);
+                tracing::warn!("an abandoned job thread returned at last");
+            }
+        });
+    if let Err(e) = spawned {
+        state.unregister_cancel(job.id);
+        return Outcome::Done(retry(state, job, format!("cannot start a job thread: {e}")));
+    }
     let mut tick = tokio::time::interval(Duration::from_millis(state.config().heartbeat_ms));
     tick.tick().await;
     let mut failures = 0u32;
     let mut last_sent: Option<Value> = None;
+    // When the job was asked to stop and must be gone by (cooperative stop, then abandonment).
+    let mut abandon_at: Option<tokio::time::Instant> = None;
+    let far = tokio::time::Instant::now() + Duration::from_secs(86_400 * 365);
     let result = loop {
+        if abandon_at.is_none() && flag.load(Ordering::SeqCst) {
+            let window =
+                if StopReason::from_u8(reason.load(Ordering::SeqCst)) == StopReason::Shutdown {
+                    SHUTDOWN_ABANDON
+                } else {
+                    Duration::from_secs(state.config().job_abandon_secs)
+                };
+            abandon_at = Some(tokio::time::Instant::now() + window);
+        }
         tokio::select! {
-            r = &mut task => break r,
+            r = &mut rx => break Some(r),
             _ = shutdown.cancelled(), if !flag.load(Ordering::SeqCst) => {
                 progress.stop(StopReason::Shutdown);
+            }
+            // The time limit holds even for a job that never asks whether it should stop.
+            _ = tokio::time::sleep_until(deadline), if !flag.load(Ordering::SeqCst) => {
+                progress.stop(StopReason::TimeLimit);
+            }
+            _ = tokio::time::sleep_until(abandon_at.unwrap_or(far)), if abandon_at.is_some() => {
+                if life
+                    .compare_exchange(THREAD_RUNNING, THREAD_ABANDONED, Ordering::SeqCst, Ordering::SeqCst)
+                    .is_ok()
+                {
+                    metrics::counter!("caliper_jobs_abandoned_total", "kind" => job.kind.clone()).increment(1);
+                    metrics::gauge!("caliper_job_threads_abandoned").increment(1.0);
+                    tracing::error!(job = %job.id, kind = %job.kind, "the job ignored its stop request; abandoning its thread and freeing the worker");
+                    break None;
+                }
+                // It finished in this very instant: take its result.
             }
             _ = tick.tick() => {
                 // Progress is only written when it changed; the lease is renewed every tick.
@@ -363,37 +460,58 @@ async fn execute(
     if why == StopReason::LeaseLost {
         return Outcome::LeaseLost;
     }
+    let stopped = |abandoned: bool| {
+        let note = if abandoned {
+            " (it did not stop when asked; its thread was abandoned)"
+        } else {
+            ""
+        };
+        Outcome::Done(match why {
+            StopReason::TimeLimit => permanent(
+                "time_limit_exceeded",
+                format!(
+                    "the job ran longer than its limit of {} s{note}",
+                    state.config().time_limit(&job.kind).as_secs()
+                ),
+            ),
+            // Re-queue at once without counting the attempt; the next start picks it up.
+            StopReason::Shutdown => Finish::Requeue {
+                error: json!({"code": "shutdown", "message": format!("the service shut down while the job ran; re-queued{note}")}),
+            },
+            _ => Finish::Canceled,
+        })
+    };
     let output = match result {
-        Err(join) => {
-            tracing::error!(job = %job.id, error = %join, "job panicked");
+        None => return stopped(true),
+        Some(Err(_)) | Some(Ok(Err(_))) => {
+            tracing::error!(job = %job.id, "job panicked");
             return Outcome::Done(permanent(
                 "internal_error",
                 "the job crashed; this is a bug and has been logged",
             ));
         }
-        Ok(Err(JobError::Canceled)) => {
-            return Outcome::Done(match why {
-                StopReason::TimeLimit => permanent(
-                    "time_limit_exceeded",
-                    format!(
-                        "the job ran longer than its limit of {} s",
-                        state.config().time_limit(&job.kind).as_secs()
-                    ),
-                ),
-                // Re-queue at once; the next start of the service picks it up.
-                StopReason::Shutdown => Finish::Retry {
-                    error: json!({"code": "shutdown", "message": "the service shut down while the job ran; re-queued"}),
-                    run_at: now_ms(),
-                },
-                _ => Finish::Canceled,
-            });
-        }
-        Ok(Err(JobError::Permanent { code, message })) => {
+        Some(Ok(Ok(Err(JobError::Canceled)))) => return stopped(false),
+        Some(Ok(Ok(Err(JobError::Permanent { code, message })))) => {
             return Outcome::Done(permanent(code, message));
         }
-        Ok(Err(JobError::Transient(m))) => return Outcome::Done(retry(state, job, m)),
-        Ok(Ok(out)) => out,
+        Some(Ok(Ok(Err(JobError::Transient(m))))) => return Outcome::Done(retry(state, job, m)),
+        Some(Ok(Ok(Ok(out)))) => out,
     };
+    // Pin the artifact keys before storing them, so that a concurrent GC pass cannot delete
+    // a blob we skip writing because it already exists (unpinned in `run_job`).
+    let shas: Vec<String> = output
+        .artifacts
+        .iter()
+        .map(|a| crate::document::sha256_hex(&a.data))
+        .collect();
+    if !shas.is_empty()
+        && let Err(e) = state
+            .store()
+            .pin_blobs(pin_token(job), &shas, now_ms() + PIN_TTL_MS)
+            .await
+    {
+        return Outcome::Done(retry(state, job, format!("pinning artifacts: {e}")));
+    }
     let mut artifacts = Vec::new();
     for a in &output.artifacts {
         match state.blobs().put_bytes(a.data.clone()).await {
@@ -427,7 +545,7 @@ async fn execute(
         schema: kind.schema().to_string(),
     });
     Outcome::Done(Finish::Succeeded {
-        result: doc,
+        seal: crate::document::sealer(doc),
         document: target,
         artifacts,
     })

@@ -25,7 +25,16 @@ pub enum StoreError {
     Db(#[from] sqlx::Error),
     #[error("stored data is inconsistent: {0}")]
     Corrupt(String),
+    #[error("blob store: {0}")]
+    Blob(String),
 }
+
+/// Deletes one blob by key, for [`Store::reap_blob`] (called inside the store's transaction).
+pub type BlobDeleter<'a> = &'a (
+        dyn Fn(String) -> futures_util::future::BoxFuture<'static, std::io::Result<()>>
+            + Send
+            + Sync
+    );
 
 pub type StoreResult<T> = Result<T, StoreError>;
 
@@ -211,10 +220,8 @@ pub enum CancelJob {
 /// Outcome of deleting a dataset.
 #[derive(Debug)]
 pub enum DeleteDataset {
-    /// Deleted; these blob keys are no longer referenced by any dataset.
-    Deleted {
-        orphan_blobs: Vec<String>,
-    },
+    /// Deleted; its blobs are candidates for garbage collection ([`Store::reap_blob`]).
+    Deleted,
     /// A queued or running job uses it.
     InUse(Vec<Uuid>),
     NotFound,
@@ -275,12 +282,11 @@ pub enum Heartbeat {
     Lost,
 }
 
-/// How a job attempt ended, as recorded by [`Store::finish_job`].
-#[derive(Debug, Clone)]
+/// How a job attempt ended, as recorded by [`JobQueue::finish_job`].
 pub enum Finish {
     Succeeded {
-        /// The unsealed document (no `rev`, no `etag`).
-        result: Value,
+        /// Seals the document once its `rev` is known.
+        seal: Seal,
         document: Option<NewDocument>,
         artifacts: Vec<ArtifactRecord>,
     },
@@ -294,14 +300,29 @@ pub enum Finish {
         run_at: i64,
     },
     Canceled,
+    /// Interrupted by a shutdown of the service: queue again at once. The interrupted attempt
+    /// does not count against `max_attempts` (the store grants one more), so graceful restarts
+    /// never turn a healthy job into a failed one.
+    Requeue {
+        error: Value,
+    },
 }
 
-/// The storage interface used by handlers and workers.
-#[async_trait]
-pub trait Store: Send + Sync + 'static {
-    /// Can we reach the database?
-    async fn ping(&self) -> StoreResult<()>;
+/// What the store needs from the caller to file a succeeded job's document: given the `rev`
+/// the store assigns (inside its transaction), the body to store and its etag. The document
+/// format is the caller's business ([`crate::document`]), not the store's.
+pub type Seal = Box<dyn FnOnce(Option<u64>) -> Sealed + Send>;
 
+/// A sealed document: its stored body and entity tag.
+#[derive(Debug, Clone)]
+pub struct Sealed {
+    pub body: String,
+    pub etag: String,
+}
+
+/// Datasets and their files.
+#[async_trait]
+pub trait DatasetStore: Send + Sync {
     async fn insert_dataset(&self, ds: &DatasetRecord) -> StoreResult<()>;
     async fn get_dataset(&self, id: Uuid) -> StoreResult<Option<DatasetRecord>>;
     async fn list_datasets(
@@ -309,10 +330,16 @@ pub trait Store: Send + Sync + 'static {
         before_id: Option<Uuid>,
         limit: u32,
     ) -> StoreResult<Vec<DatasetRecord>>;
+    /// Delete a dataset no queued or running job uses; its blobs become GC candidates.
     async fn delete_dataset(&self, id: Uuid) -> StoreResult<DeleteDataset>;
+}
 
+/// The job queue: jobs, attempts, leases and the artifacts of finished jobs.
+#[async_trait]
+pub trait JobQueue: Send + Sync {
     async fn create_job(&self, job: NewJob, max_queued: u64) -> StoreResult<CreateJob>;
-    /// A job's row without its result (the document can be large; see [`Store::get_job_result`]).
+    /// A job's row without its result (the document can be large; see
+    /// [`JobQueue::get_job_result`]).
     async fn get_job(&self, id: Uuid) -> StoreResult<Option<JobRecord>>;
     /// The sealed result document (canonical JSON) of a succeeded job.
     async fn get_job_result(&self, id: Uuid) -> StoreResult<Option<String>>;
@@ -336,7 +363,9 @@ pub trait Store: Send + Sync + 'static {
         lease_until: i64,
         progress: Option<&Value>,
     ) -> StoreResult<Heartbeat>;
-    /// Record the end of an attempt; fenced. Returns false if the lease was lost (nothing written).
+    /// Record the end of an attempt; fenced. Returns false if the lease was lost (nothing
+    /// written). A succeeded job's document is filed with the next `rev` of its
+    /// (device, sensor, kind), assigned in the same transaction.
     async fn finish_job(
         &self,
         id: Uuid,
@@ -345,15 +374,21 @@ pub trait Store: Send + Sync + 'static {
         now: i64,
         finish: Finish,
     ) -> StoreResult<bool>;
-    /// Re-queue running jobs whose lease expired (or all running jobs when `all`, used at start-up
-    /// by the exclusive embedded profile). Jobs out of attempts fail. Returns how many changed.
+    /// Re-queue running jobs whose lease expired (or all running jobs when `all`, used at
+    /// start-up by the exclusive embedded profile). Jobs out of attempts fail. Returns how many
+    /// changed.
     async fn recover_leases(&self, now: i64, all: bool) -> StoreResult<u64>;
-    /// Delete finished jobs that ended before `before`; returns artifact blob keys now unreferenced.
-    async fn prune_jobs(&self, before: i64) -> StoreResult<Vec<String>>;
+    /// Delete finished jobs older than `before` (except those a document refers to) with
+    /// their artifacts, whose blobs become GC candidates; returns how many jobs went.
+    async fn prune_jobs(&self, before: i64) -> StoreResult<u64>;
 
     async fn list_artifacts(&self, job: Uuid) -> StoreResult<Vec<ArtifactRecord>>;
     async fn get_artifact(&self, job: Uuid, name: &str) -> StoreResult<Option<ArtifactRecord>>;
+}
 
+/// Immutable document revisions.
+#[async_trait]
+pub trait DocumentStore: Send + Sync {
     async fn list_documents(&self, device: &str) -> StoreResult<Vec<DocumentSummary>>;
     async fn get_document(
         &self,
@@ -368,6 +403,39 @@ pub trait Store: Send + Sync + 'static {
         sensor: &str,
         kind: &str,
     ) -> StoreResult<Vec<DocumentRecord>>;
+}
+
+/// Blob lifetime. A writer pins the keys it is about to store before it stores them, then
+/// references them (dataset, artifacts) and unpins; GC removes only candidates that are
+/// neither referenced nor pinned, checking and deleting under the store's write lock.
+#[async_trait]
+pub trait BlobRefs: Send + Sync {
+    /// Pin `shas` for `token` until `expires_at` (or [`BlobRefs::unpin_blobs`]).
+    async fn pin_blobs(&self, token: Uuid, shas: &[String], expires_at: i64) -> StoreResult<()>;
+    /// Drop the pins of `token`; their keys become GC candidates.
+    async fn unpin_blobs(&self, token: Uuid, now: i64) -> StoreResult<()>;
+    /// Expire stale pins, then list up to `limit` candidates queued at or before `due_before`.
+    async fn gc_candidates(
+        &self,
+        now: i64,
+        due_before: i64,
+        limit: u32,
+    ) -> StoreResult<Vec<String>>;
+    /// Delete the blob `sha` with `delete` if nothing references or pins it, atomically with
+    /// respect to pins and references; drops the candidate either way. True if deleted.
+    async fn reap_blob(&self, sha: &str, now: i64, delete: BlobDeleter<'_>) -> StoreResult<bool>;
+    /// Drop every pin (at start, when this process owns the store alone).
+    async fn clear_pins(&self, now: i64) -> StoreResult<()>;
+}
+
+/// The whole storage interface used by handlers and workers: one trait per concern, so a
+/// second implementation (PostgreSQL) plugs in concern by concern.
+#[async_trait]
+pub trait Store:
+    DatasetStore + JobQueue + DocumentStore + BlobRefs + Send + Sync + 'static
+{
+    /// Can we reach the database?
+    async fn ping(&self) -> StoreResult<()>;
 }
 
 #[cfg(test)]

@@ -86,8 +86,8 @@ async fn writes_from_an_expired_lease_are_fenced_off() {
         s.heartbeat(job.id, old, 1, 9999, None).await.unwrap(),
         Heartbeat::Lost
     );
-    let late = Finish::Succeeded {
-        result: json!({"schema": "x"}),
+    let late = || Finish::Succeeded {
+        seal: crate::document::sealer(json!({"schema": "x"})),
         document: Some(NewDocument {
             device: "dev".into(),
             sensor: "cam0".into(),
@@ -96,11 +96,7 @@ async fn writes_from_an_expired_lease_are_fenced_off() {
         }),
         artifacts: vec![],
     };
-    assert!(
-        !s.finish_job(job.id, old, 1, 6000, late.clone())
-            .await
-            .unwrap()
-    );
+    assert!(!s.finish_job(job.id, old, 1, 6000, late()).await.unwrap());
     assert!(
         s.get_document("dev", "cam0", "blur_score", None)
             .await
@@ -114,13 +110,9 @@ async fn writes_from_an_expired_lease_are_fenced_off() {
             .unwrap(),
         Heartbeat::Renewed { cancel: false }
     );
+    assert!(s.finish_job(job.id, new, 2, 7000, late()).await.unwrap());
     assert!(
-        s.finish_job(job.id, new, 2, 7000, late.clone())
-            .await
-            .unwrap()
-    );
-    assert!(
-        !s.finish_job(job.id, new, 2, 7001, late).await.unwrap(),
+        !s.finish_job(job.id, new, 2, 7001, late()).await.unwrap(),
         "a second completion is refused"
     );
     let revs = s.list_revisions("dev", "cam0", "blur_score").await.unwrap();
@@ -137,15 +129,11 @@ async fn retries_wait_for_their_time_and_attempts_run_out() {
     let job = created(&s, new_job(ds, None, "h", 1000)).await;
     let w = Uuid::now_v7();
     s.claim_job(w, 1000, 9000).await.unwrap().unwrap();
-    let retry = Finish::Retry {
+    let retry = || Finish::Retry {
         error: json!({"code": "transient", "message": "io"}),
         run_at: 5000,
     };
-    assert!(
-        s.finish_job(job.id, w, 1, 1100, retry.clone())
-            .await
-            .unwrap()
-    );
+    assert!(s.finish_job(job.id, w, 1, 1100, retry()).await.unwrap());
     assert!(
         s.claim_job(w, 4999, 9000).await.unwrap().is_none(),
         "not before run_at"
@@ -153,7 +141,7 @@ async fn retries_wait_for_their_time_and_attempts_run_out() {
     let j = s.claim_job(w, 5000, 9000).await.unwrap().unwrap();
     assert_eq!(j.attempt, 2);
     // max_attempts = 2: the next transient failure is final.
-    assert!(s.finish_job(job.id, w, 2, 5100, retry).await.unwrap());
+    assert!(s.finish_job(job.id, w, 2, 5100, retry()).await.unwrap());
     let j = s.get_job(job.id).await.unwrap().unwrap();
     assert_eq!(j.status, JobStatus::Failed);
     assert_eq!(j.error.unwrap()["attempts_exhausted"], 2);
@@ -265,15 +253,33 @@ async fn cancel_queued_running_and_finished() {
     assert!(s.claim_job(w, 2000, 9000).await.unwrap().is_none());
 }
 
+/// Run a GC pass over every due candidate; returns the keys it deleted.
+async fn reap_all(s: &SqliteStore, now: i64) -> Vec<String> {
+    let deleted = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let d2 = deleted.clone();
+    let delete = move |sha: String| {
+        d2.lock().unwrap().push(sha);
+        let fut: futures_util::future::BoxFuture<'static, std::io::Result<()>> =
+            Box::pin(async { Ok(()) });
+        fut
+    };
+    for sha in s.gc_candidates(now, now, 1000).await.unwrap() {
+        s.reap_blob(&sha, now, &delete).await.unwrap();
+    }
+    let mut out = deleted.lock().unwrap().clone();
+    out.sort();
+    out
+}
+
 #[tokio::test]
-async fn pruning_removes_old_finished_jobs_and_reports_orphan_artifacts() {
+async fn pruning_removes_old_finished_jobs_and_collects_orphan_artifacts() {
     let (s, _d) = store().await;
     let ds = dataset(&s).await;
     let j = created(&s, new_job(ds, None, "a", 1000)).await;
     let w = Uuid::now_v7();
     s.claim_job(w, 1000, 9000).await.unwrap().unwrap();
     let fin = Finish::Succeeded {
-        result: json!({}),
+        seal: crate::document::sealer(json!({})),
         document: None,
         artifacts: vec![ArtifactRecord {
             name: "p.svg".into(),
@@ -283,29 +289,83 @@ async fn pruning_removes_old_finished_jobs_and_reports_orphan_artifacts() {
         }],
     };
     assert!(s.finish_job(j.id, w, 1, 2000, fin).await.unwrap());
-    assert!(s.prune_jobs(1500).await.unwrap().is_empty(), "too recent");
+    assert_eq!(s.prune_jobs(1500).await.unwrap(), 0, "too recent");
     assert!(s.get_job(j.id).await.unwrap().is_some());
-    assert_eq!(s.prune_jobs(2500).await.unwrap(), vec!["feed".to_string()]);
+    assert_eq!(s.prune_jobs(2500).await.unwrap(), 1);
     assert!(s.get_job(j.id).await.unwrap().is_none());
+    assert_eq!(reap_all(&s, i64::MAX / 2).await, vec!["feed".to_string()]);
+    assert!(
+        reap_all(&s, i64::MAX / 2).await.is_empty(),
+        "candidate dropped"
+    );
 }
 
 #[tokio::test]
-async fn deleting_a_dataset_reports_unshared_blobs() {
+async fn pruning_keeps_jobs_that_documents_cite() {
     let (s, _d) = store().await;
+    let ds = dataset(&s).await;
+    let j = created(&s, new_job(ds, Some("dev-1"), "a", 1000)).await;
+    let w = Uuid::now_v7();
+    s.claim_job(w, 1000, 9000).await.unwrap().unwrap();
+    let fin = Finish::Succeeded {
+        seal: crate::document::sealer(json!({})),
+        document: Some(NewDocument {
+            device: "dev-1".into(),
+            sensor: "default".into(),
+            kind: "blur_score".into(),
+            schema: "caliper.blur_score/v1".into(),
+        }),
+        artifacts: vec![ArtifactRecord {
+            name: "p.svg".into(),
+            media_type: "image/svg+xml".into(),
+            sha256: "feed".into(),
+            size: 4,
+        }],
+    };
+    assert!(s.finish_job(j.id, w, 1, 2000, fin).await.unwrap());
+    assert_eq!(s.prune_jobs(i64::MAX / 2).await.unwrap(), 0);
+    assert!(s.get_artifact(j.id, "p.svg").await.unwrap().is_some());
+    assert!(reap_all(&s, i64::MAX / 2).await.is_empty());
+}
+
+#[tokio::test]
+async fn gc_deletes_only_unreferenced_unpinned_blobs() {
+    let (s, _d) = store().await;
+    // Deletion nominates with the wall clock; run the passes a little later than that.
+    let t = crate::clock::now_ms() + 60_000;
     let a = dataset(&s).await;
     let b = dataset(&s).await;
-    match s.delete_dataset(a).await.unwrap() {
-        DeleteDataset::Deleted { orphan_blobs } => {
-            assert!(orphan_blobs.is_empty(), "b still uses it")
-        }
-        other => panic!("{other:?}"),
-    }
-    match s.delete_dataset(b).await.unwrap() {
-        DeleteDataset::Deleted { orphan_blobs } => {
-            assert_eq!(orphan_blobs, vec!["abc".to_string()])
-        }
-        other => panic!("{other:?}"),
-    }
+    assert!(matches!(
+        s.delete_dataset(a).await.unwrap(),
+        DeleteDataset::Deleted
+    ));
+    assert!(reap_all(&s, t).await.is_empty(), "b still uses it");
+    // A writer pins the key (a re-upload of the same bytes) before b goes.
+    let token = Uuid::now_v7();
+    s.pin_blobs(token, &["abc".to_string()], t + 50_000)
+        .await
+        .unwrap();
+    assert!(matches!(
+        s.delete_dataset(b).await.unwrap(),
+        DeleteDataset::Deleted
+    ));
+    assert!(reap_all(&s, t).await.is_empty(), "pinned");
+    // An expired pin protects nothing; the key is nominated again when the pin expires.
+    assert_eq!(reap_all(&s, t + 60_000).await, vec!["abc".to_string()]);
+    s.unpin_blobs(token, t + 70_000).await.unwrap();
+    // Candidates not yet due are left alone.
+    let later = Uuid::now_v7();
+    s.pin_blobs(later, &["def".to_string()], t + 99_000)
+        .await
+        .unwrap();
+    s.unpin_blobs(later, t + 80_000).await.unwrap();
+    assert!(
+        s.gc_candidates(t + 80_000, t + 79_999, 10)
+            .await
+            .unwrap()
+            .is_empty()
+    );
+    assert_eq!(reap_all(&s, t + 80_000).await, vec!["def".to_string()]);
     assert!(matches!(
         s.delete_dataset(b).await.unwrap(),
         DeleteDataset::NotFound

@@ -1,134 +1,18 @@
-//! The embedded profile's store: one SQLite file in WAL mode.
-//!
-//! Writes go through a pool of exactly one connection, so transactions never contend for the
-//! write lock ("database is locked" cannot happen between our own writers); reads use a
-//! separate pool and proceed concurrently thanks to WAL.
-
-use std::path::Path;
-use std::str::FromStr;
-use std::time::Duration;
+//! The job queue: creation with idempotency keys, claims with leases, heartbeats, fenced
+//! completion, lease recovery, retention, and the artifacts of finished jobs.
 
 use async_trait::async_trait;
 use serde_json::Value;
-use sqlx::sqlite::{
-    SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteRow,
-    SqliteSynchronous,
-};
+use sqlx::sqlite::SqliteRow;
 use sqlx::{AssertSqlSafe, Row};
 use uuid::Uuid;
 
-use super::*;
-use crate::document;
-
-/// Migrations in order; the index + 1 is the schema version.
-const MIGRATIONS: &[&str] = &[include_str!("schema_v1.sql")];
+use super::{SqliteStore, parse_json, parse_uuid, queue_gc};
+use crate::store::*;
 
 const JOB_COLS: &str = "id, kind, dataset_id, device, sensor, params, status, attempt, max_attempts, \
     run_at, lease_owner, lease_expires_at, cancel_requested, progress, error, document_rev, \
     idempotency_key, request_hash, created_at, started_at, finished_at";
-
-/// SQLite-backed [`Store`].
-#[derive(Clone)]
-pub struct SqliteStore {
-    write: SqlitePool,
-    read: SqlitePool,
-}
-
-impl SqliteStore {
-    /// Open (creating if needed) the database file and bring its schema up to date.
-    pub async fn open(path: &Path) -> StoreResult<Self> {
-        let opts = SqliteConnectOptions::new()
-            .filename(path)
-            .create_if_missing(true)
-            .journal_mode(SqliteJournalMode::Wal)
-            .synchronous(SqliteSynchronous::Normal)
-            .busy_timeout(Duration::from_secs(10))
-            .foreign_keys(true);
-        let write = SqlitePoolOptions::new()
-            .max_connections(1)
-            .connect_with(opts.clone())
-            .await?;
-        let store_tmp = Self {
-            write: write.clone(),
-            read: write.clone(),
-        };
-        store_tmp.migrate().await?;
-        let read = SqlitePoolOptions::new()
-            .max_connections(8)
-            .min_connections(2)
-            .connect_with(opts.read_only(true))
-            .await?;
-        Ok(Self { write, read })
-    }
-
-    async fn migrate(&self) -> StoreResult<()> {
-        let mut tx = self.write.begin().await?;
-        sqlx::query(
-            "CREATE TABLE IF NOT EXISTS schema_migrations (version INTEGER PRIMARY KEY, applied_at INTEGER NOT NULL)",
-        )
-        .execute(&mut *tx)
-        .await?;
-        let current: i64 =
-            sqlx::query_scalar("SELECT COALESCE(MAX(version), 0) FROM schema_migrations")
-                .fetch_one(&mut *tx)
-                .await?;
-        for (i, sql) in MIGRATIONS.iter().enumerate() {
-            let version = i as i64 + 1;
-            if version <= current {
-                continue;
-            }
-            for stmt in sql.split(';').map(str::trim).filter(|s| !only_comments(s)) {
-                sqlx::query(AssertSqlSafe(stmt.to_string()))
-                    .execute(&mut *tx)
-                    .await?;
-            }
-            sqlx::query("INSERT INTO schema_migrations (version, applied_at) VALUES (?, ?)")
-                .bind(version)
-                .bind(crate::clock::now_ms())
-                .execute(&mut *tx)
-                .await?;
-        }
-        tx.commit().await?;
-        Ok(())
-    }
-}
-
-/// The blob keys among `shas` that no dataset file and no artifact references any more.
-async fn unreferenced(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
-    shas: Vec<String>,
-) -> StoreResult<Vec<String>> {
-    let mut orphans = Vec::new();
-    for sha in shas {
-        let used: Option<i64> = sqlx::query_scalar(
-            "SELECT 1 FROM dataset_files WHERE sha256 = ? UNION ALL SELECT 1 FROM artifacts WHERE sha256 = ? LIMIT 1",
-        )
-        .bind(&sha)
-        .bind(&sha)
-        .fetch_optional(&mut **tx)
-        .await?;
-        if used.is_none() {
-            orphans.push(sha);
-        }
-    }
-    Ok(orphans)
-}
-
-fn only_comments(s: &str) -> bool {
-    s.lines().all(|l| {
-        let l = l.trim();
-        l.is_empty() || l.starts_with("--")
-    })
-}
-
-fn parse_uuid(s: &str) -> StoreResult<Uuid> {
-    Uuid::from_str(s).map_err(|e| StoreError::Corrupt(format!("bad uuid {s:?}: {e}")))
-}
-
-fn parse_json(s: Option<String>) -> StoreResult<Option<Value>> {
-    s.map(|t| serde_json::from_str(&t).map_err(|e| StoreError::Corrupt(e.to_string())))
-        .transpose()
-}
 
 fn job_from_row(r: &SqliteRow) -> StoreResult<JobRecord> {
     let status: String = r.try_get("status")?;
@@ -161,21 +45,6 @@ fn job_from_row(r: &SqliteRow) -> StoreResult<JobRecord> {
     })
 }
 
-fn doc_from_row(r: &SqliteRow) -> StoreResult<DocumentRecord> {
-    let job: Option<String> = r.try_get("job_id")?;
-    Ok(DocumentRecord {
-        device: r.try_get("device")?,
-        sensor: r.try_get("sensor")?,
-        kind: r.try_get("kind")?,
-        rev: r.try_get::<i64, _>("rev")? as u64,
-        etag: r.try_get("etag")?,
-        schema: r.try_get("schema")?,
-        created_at: r.try_get("created_at")?,
-        job_id: job.as_deref().map(parse_uuid).transpose()?,
-        body: r.try_get("body")?,
-    })
-}
-
 fn artifact_from_row(r: &SqliteRow) -> StoreResult<ArtifactRecord> {
     Ok(ArtifactRecord {
         name: r.try_get("name")?,
@@ -185,167 +54,8 @@ fn artifact_from_row(r: &SqliteRow) -> StoreResult<ArtifactRecord> {
     })
 }
 
-impl SqliteStore {
-    async fn load_files(&self, id: Uuid) -> StoreResult<Vec<DatasetFile>> {
-        let rows = sqlx::query(
-            "SELECT name, sha256, size, media_type, image FROM dataset_files WHERE dataset_id = ? ORDER BY idx",
-        )
-        .bind(id.to_string())
-        .fetch_all(&self.read)
-        .await?;
-        rows.iter()
-            .map(|r| {
-                let image: Option<String> = r.try_get("image")?;
-                Ok(DatasetFile {
-                    name: r.try_get("name")?,
-                    sha256: r.try_get("sha256")?,
-                    size: r.try_get::<i64, _>("size")? as u64,
-                    media_type: r.try_get("media_type")?,
-                    image: image
-                        .map(|t| serde_json::from_str(&t))
-                        .transpose()
-                        .map_err(|e| StoreError::Corrupt(e.to_string()))?,
-                })
-            })
-            .collect()
-    }
-
-    fn dataset_from_row(r: &SqliteRow, files: Vec<DatasetFile>) -> StoreResult<DatasetRecord> {
-        let kind: String = r.try_get("kind")?;
-        Ok(DatasetRecord {
-            id: parse_uuid(&r.try_get::<String, _>("id")?)?,
-            kind: DatasetKind::parse(&kind)
-                .ok_or_else(|| StoreError::Corrupt(format!("bad dataset kind {kind}")))?,
-            created_at: r.try_get("created_at")?,
-            total_bytes: r.try_get::<i64, _>("total_bytes")? as u64,
-            sha256: r.try_get("sha256")?,
-            files,
-        })
-    }
-}
-
 #[async_trait]
-impl Store for SqliteStore {
-    async fn ping(&self) -> StoreResult<()> {
-        sqlx::query("SELECT 1").execute(&self.read).await?;
-        Ok(())
-    }
-
-    async fn insert_dataset(&self, ds: &DatasetRecord) -> StoreResult<()> {
-        let mut tx = self.write.begin().await?;
-        sqlx::query(
-            "INSERT INTO datasets (id, kind, created_at, total_bytes, sha256, file_count) VALUES (?, ?, ?, ?, ?, ?)",
-        )
-        .bind(ds.id.to_string())
-        .bind(ds.kind.as_str())
-        .bind(ds.created_at)
-        .bind(ds.total_bytes as i64)
-        .bind(&ds.sha256)
-        .bind(ds.files.len() as i64)
-        .execute(&mut *tx)
-        .await?;
-        for (i, f) in ds.files.iter().enumerate() {
-            let image = f
-                .image
-                .as_ref()
-                .map(serde_json::to_string)
-                .transpose()
-                .map_err(|e| StoreError::Corrupt(e.to_string()))?;
-            sqlx::query(
-                "INSERT INTO dataset_files (dataset_id, idx, name, sha256, size, media_type, image) VALUES (?, ?, ?, ?, ?, ?, ?)",
-            )
-            .bind(ds.id.to_string())
-            .bind(i as i64)
-            .bind(&f.name)
-            .bind(&f.sha256)
-            .bind(f.size as i64)
-            .bind(&f.media_type)
-            .bind(image)
-            .execute(&mut *tx)
-            .await?;
-        }
-        tx.commit().await?;
-        Ok(())
-    }
-
-    async fn get_dataset(&self, id: Uuid) -> StoreResult<Option<DatasetRecord>> {
-        let row = sqlx::query("SELECT * FROM datasets WHERE id = ?")
-            .bind(id.to_string())
-            .fetch_optional(&self.read)
-            .await?;
-        match row {
-            None => Ok(None),
-            Some(r) => {
-                let files = self.load_files(id).await?;
-                Ok(Some(Self::dataset_from_row(&r, files)?))
-            }
-        }
-    }
-
-    async fn list_datasets(
-        &self,
-        before_id: Option<Uuid>,
-        limit: u32,
-    ) -> StoreResult<Vec<DatasetRecord>> {
-        let rows = sqlx::query(
-            "SELECT * FROM datasets WHERE (? IS NULL OR id < ?) ORDER BY id DESC LIMIT ?",
-        )
-        .bind(before_id.map(|u| u.to_string()))
-        .bind(before_id.map(|u| u.to_string()))
-        .bind(limit as i64)
-        .fetch_all(&self.read)
-        .await?;
-        let mut out = Vec::with_capacity(rows.len());
-        for r in &rows {
-            let id = parse_uuid(&r.try_get::<String, _>("id")?)?;
-            let files = self.load_files(id).await?;
-            out.push(Self::dataset_from_row(r, files)?);
-        }
-        Ok(out)
-    }
-
-    async fn delete_dataset(&self, id: Uuid) -> StoreResult<DeleteDataset> {
-        let mut tx = self.write.begin().await?;
-        let exists: Option<i64> = sqlx::query_scalar("SELECT 1 FROM datasets WHERE id = ?")
-            .bind(id.to_string())
-            .fetch_optional(&mut *tx)
-            .await?;
-        if exists.is_none() {
-            return Ok(DeleteDataset::NotFound);
-        }
-        let users: Vec<String> = sqlx::query_scalar(
-            "SELECT id FROM jobs WHERE dataset_id = ? AND status IN ('queued', 'running') ORDER BY id",
-        )
-        .bind(id.to_string())
-        .fetch_all(&mut *tx)
-        .await?;
-        if !users.is_empty() {
-            let ids = users
-                .iter()
-                .map(|s| parse_uuid(s))
-                .collect::<StoreResult<Vec<_>>>()?;
-            return Ok(DeleteDataset::InUse(ids));
-        }
-        let shas: Vec<String> =
-            sqlx::query_scalar("SELECT DISTINCT sha256 FROM dataset_files WHERE dataset_id = ?")
-                .bind(id.to_string())
-                .fetch_all(&mut *tx)
-                .await?;
-        sqlx::query("DELETE FROM dataset_files WHERE dataset_id = ?")
-            .bind(id.to_string())
-            .execute(&mut *tx)
-            .await?;
-        sqlx::query("DELETE FROM datasets WHERE id = ?")
-            .bind(id.to_string())
-            .execute(&mut *tx)
-            .await?;
-        let orphans = unreferenced(&mut tx, shas).await?;
-        tx.commit().await?;
-        Ok(DeleteDataset::Deleted {
-            orphan_blobs: orphans,
-        })
-    }
-
+impl JobQueue for SqliteStore {
     async fn create_job(&self, job: NewJob, max_queued: u64) -> StoreResult<CreateJob> {
         let mut tx = self.write.begin().await?;
         if let Some(key) = &job.idempotency_key {
@@ -626,6 +336,7 @@ impl Store for SqliteStore {
             Finish::Failed { error } => ("failed", Some(error.to_string())),
             Finish::Retry { error, .. } => ("retry", Some(error.to_string())),
             Finish::Canceled => ("canceled", None),
+            Finish::Requeue { error } => ("shutdown", Some(error.to_string())),
         };
         sqlx::query(
             "UPDATE job_attempts SET finished_at = ?, outcome = ?, error = ? WHERE job_id = ? AND attempt = ?",
@@ -639,7 +350,7 @@ impl Store for SqliteStore {
         .await?;
         match finish {
             Finish::Succeeded {
-                result,
+                seal,
                 document,
                 artifacts,
             } => {
@@ -657,7 +368,7 @@ impl Store for SqliteStore {
                     }
                     None => None,
                 };
-                let (body, etag) = document::seal(result, rev);
+                let Sealed { body, etag } = seal(rev);
                 if let (Some(d), Some(rev)) = (&document, rev) {
                     sqlx::query(
                         "INSERT INTO documents (device, sensor, kind, rev, etag, schema, created_at, job_id, body) \
@@ -737,6 +448,17 @@ impl Store for SqliteStore {
                     .await?;
                 }
             }
+            Finish::Requeue { error } => {
+                sqlx::query(
+                    "UPDATE jobs SET status = 'queued', error = ?, run_at = ?, lease_owner = NULL, \
+                     lease_expires_at = NULL, max_attempts = max_attempts + 1 WHERE id = ?",
+                )
+                .bind(error.to_string())
+                .bind(now)
+                .bind(id.to_string())
+                .execute(&mut *tx)
+                .await?;
+            }
             Finish::Canceled => {
                 let err =
                     serde_json::json!({"code": "canceled", "message": "canceled while running"});
@@ -796,10 +518,11 @@ impl Store for SqliteStore {
         Ok(failed + requeued)
     }
 
-    async fn prune_jobs(&self, before: i64) -> StoreResult<Vec<String>> {
+    async fn prune_jobs(&self, before: i64) -> StoreResult<u64> {
         let mut tx = self.write.begin().await?;
         let ids: Vec<String> = sqlx::query_scalar(
-            "SELECT id FROM jobs WHERE status IN ('succeeded', 'failed', 'canceled') AND finished_at < ?",
+            "SELECT id FROM jobs WHERE status IN ('succeeded', 'failed', 'canceled') AND finished_at < ? \
+             AND id NOT IN (SELECT job_id FROM documents WHERE job_id IS NOT NULL)",
         )
         .bind(before)
         .fetch_all(&mut *tx)
@@ -822,9 +545,9 @@ impl Store for SqliteStore {
         }
         candidates.sort();
         candidates.dedup();
-        let orphans = unreferenced(&mut tx, candidates).await?;
+        queue_gc(&mut tx, &candidates, crate::clock::now_ms()).await?;
         tx.commit().await?;
-        Ok(orphans)
+        Ok(ids.len() as u64)
     }
 
     async fn list_artifacts(&self, job: Uuid) -> StoreResult<Vec<ArtifactRecord>> {
@@ -844,80 +567,5 @@ impl Store for SqliteStore {
             .as_ref()
             .map(artifact_from_row)
             .transpose()
-    }
-
-    async fn list_documents(&self, device: &str) -> StoreResult<Vec<DocumentSummary>> {
-        let rows = sqlx::query(
-            "SELECT d.* FROM documents d JOIN (SELECT sensor, kind, MAX(rev) AS rev FROM documents \
-             WHERE device = ? GROUP BY sensor, kind) m ON d.sensor = m.sensor AND d.kind = m.kind \
-             AND d.rev = m.rev WHERE d.device = ? ORDER BY d.sensor, d.kind",
-        )
-        .bind(device)
-        .bind(device)
-        .fetch_all(&self.read)
-        .await?;
-        rows.iter()
-            .map(|r| {
-                let d = doc_from_row(r)?;
-                Ok(DocumentSummary {
-                    sensor: d.sensor,
-                    kind: d.kind,
-                    schema: d.schema,
-                    latest_rev: d.rev,
-                    etag: d.etag,
-                    created_at: crate::clock::rfc3339(d.created_at),
-                })
-            })
-            .collect()
-    }
-
-    async fn get_document(
-        &self,
-        device: &str,
-        sensor: &str,
-        kind: &str,
-        rev: Option<u64>,
-    ) -> StoreResult<Option<DocumentRecord>> {
-        let row = match rev {
-            Some(rev) => {
-                sqlx::query(
-                    "SELECT * FROM documents WHERE device = ? AND sensor = ? AND kind = ? AND rev = ?",
-                )
-                .bind(device)
-                .bind(sensor)
-                .bind(kind)
-                .bind(rev as i64)
-                .fetch_optional(&self.read)
-                .await?
-            }
-            None => {
-                sqlx::query(
-                    "SELECT * FROM documents WHERE device = ? AND sensor = ? AND kind = ? ORDER BY rev DESC LIMIT 1",
-                )
-                .bind(device)
-                .bind(sensor)
-                .bind(kind)
-                .fetch_optional(&self.read)
-                .await?
-            }
-        };
-        row.as_ref().map(doc_from_row).transpose()
-    }
-
-    async fn list_revisions(
-        &self,
-        device: &str,
-        sensor: &str,
-        kind: &str,
-    ) -> StoreResult<Vec<DocumentRecord>> {
-        let rows = sqlx::query(
-            "SELECT * FROM documents WHERE device = ? AND sensor = ? AND kind = ? ORDER BY rev DESC",
-        )
-        .bind(device)
-        .bind(sensor)
-        .bind(kind)
-        .fetch_all(&self.read)
-        .await?;
-        rows.iter().map(doc_from_row).collect()
     }
 }

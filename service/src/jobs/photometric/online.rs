@@ -1,0 +1,92 @@
+//! `photometric_online`: response, vignetting and per-frame exposures of an auto-exposure
+//! image sequence (Bergmann et al. 2017).
+
+use caliper_core::Progress;
+use caliper_core::photometric::{OnlineParams, dso, photometric_online, plot};
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
+
+use super::{
+    decode_all, response_artifacts, sorted_files, text_artifact, times_entries, vignette_artifacts,
+};
+use crate::jobs::{
+    Artifact, CliContext, Export, JobError, JobInput, JobOutput, JsonParams, Kind, ParamError,
+    RunError, to_value,
+};
+use crate::store::DatasetKind;
+
+/// Parameters of `photometric_online`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct OnlineJobParams {
+    /// Time between frames, s, for the `times.txt` timestamps (default: frame index).
+    pub frame_interval_s: Option<f64>,
+    /// Fit options.
+    pub options: OnlineParams,
+}
+
+/// `photometric_online`: response, vignetting and exposures of an auto-exposure sequence.
+pub struct PhotometricOnline;
+
+impl Kind for PhotometricOnline {
+    const NAME: &'static str = "photometric_online";
+    const SCHEMA: &'static str = "caliper.photometric/v1";
+    const DATASET: DatasetKind = DatasetKind::Images;
+    const DESCRIPTION: &'static str = "Online photometric calibration of an auto-exposure image sequence (Bergmann et al. 2017): response, vignetting and per-frame exposures; DSO pcalib.txt, vignette.png, times.txt.";
+    const EXPORTS: &'static [Export] = super::EXPORTS;
+    type Params = OnlineJobParams;
+    type Cli = JsonParams;
+
+    fn check(p: &mut OnlineJobParams) -> Result<(), ParamError> {
+        p.options
+            .validate()
+            .map_err(|e| ParamError::from_core("options", e))?;
+        if let Some(d) = p.frame_interval_s
+            && !(d.is_finite() && d > 0.0)
+        {
+            return Err(ParamError::new(
+                "frame_interval_s",
+                "must be finite and > 0",
+            ));
+        }
+        Ok(())
+    }
+
+    fn cli_params(a: &JsonParams, _: &CliContext<'_>) -> Result<Value, RunError> {
+        a.value()
+    }
+
+    fn run(
+        &self,
+        p: OnlineJobParams,
+        input: &JobInput,
+        progress: &dyn Progress,
+    ) -> Result<JobOutput, JobError> {
+        let files = sorted_files(input);
+        let images = decode_all(input, &files, progress)?;
+        let r = photometric_online(&images, &p.options, progress)?;
+        let quality = json!({
+            "frames": images.len(),
+            "tracks": r.tracks,
+            "mean_track_length": r.mean_track_length,
+            "residual_rms_levels": r.diagnostics.residual_rms_levels,
+            "converged": r.diagnostics.converged,
+        });
+        let mut artifacts = response_artifacts(&r.model)?;
+        if let Some(v) = &r.model.vignette {
+            artifacts.extend(vignette_artifacts(v)?);
+        }
+        let entries = times_entries(&files, &r.exposure_ratios, p.frame_interval_s);
+        artifacts.push(text_artifact("times.txt", dso::write_times(&entries)));
+        let ts: Vec<f64> = entries.iter().map(|e| e.timestamp).collect();
+        artifacts.push(Artifact::svg(
+            "exposures.svg",
+            plot::exposure_svg(&r.exposure_ratios, Some(&ts), None),
+        ));
+        Ok(JobOutput {
+            parameters: to_value(&r)?,
+            quality,
+            artifacts,
+        })
+    }
+}
