@@ -277,7 +277,9 @@ impl CameraModel for PinholeRadTan {
         let mut res = cur.d - target;
         for _ in 0..UNPROJECT_MAX_ITERATIONS {
             if res.norm() <= UNPROJECT_TOLERANCE {
-                return Some(Vector3::new(x.x, x.y, 1.0).normalize());
+                // The same domain as `project`: no ray from the ill-conditioned band at the fold.
+                return (x.norm_squared() < self.max_r2 * FOLD_MARGIN)
+                    .then(|| Vector3::new(x.x, x.y, 1.0).normalize());
             }
             let step = cur.jac.try_inverse()? * res;
             let mut scale = 1.0;
