@@ -5,7 +5,10 @@
 
 use std::path::Path;
 
-fn replay(dir: &str, target: &str, run: fn(&[u8])) -> usize {
+/// A fuzz entry point.
+type Harness = fn(&[u8]);
+
+fn replay(dir: &str, target: &str, run: Harness) -> usize {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("fuzz")
         .join(dir)
@@ -28,7 +31,7 @@ fn replay(dir: &str, target: &str, run: fn(&[u8])) -> usize {
 #[test]
 fn corpora_and_regressions_replay_without_panics() {
     use caliper_core::fuzz_harness as h;
-    let targets: [(&str, fn(&[u8])); 5] = [
+    let targets: [(&str, Harness); 5] = [
         ("image", h::image),
         ("imu_log", h::imu_log),
         ("psf", h::psf),

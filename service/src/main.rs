@@ -23,7 +23,7 @@ enum Command {
     /// Run the HTTP service (embedded profile: SQLite + local blobs in the data directory).
     Serve {
         #[command(flatten)]
-        config: ConfigArgs,
+        config: Box<ConfigArgs>,
         /// Seconds running jobs get to finish on shutdown before they are re-queued.
         #[arg(long, env = "CALIPER_SHUTDOWN_GRACE_SECS", default_value_t = 20)]
         shutdown_grace_secs: u64,
@@ -58,7 +58,7 @@ fn main() -> ExitCode {
         Command::Serve {
             config,
             shutdown_grace_secs,
-        } => serve(config, Duration::from_secs(shutdown_grace_secs)),
+        } => serve(*config, Duration::from_secs(shutdown_grace_secs)),
     }
 }
 

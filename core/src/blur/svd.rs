@@ -71,7 +71,7 @@ fn short_side_matrix(img: &Gray) -> Mat<f64> {
             f64::from(acc)
         };
         return if rh <= rw {
-            Mat::from_fn(rw, rh, |i, j| block(i, j))
+            Mat::from_fn(rw, rh, &block)
         } else {
             Mat::from_fn(rh, rw, |i, j| block(j, i))
         };
