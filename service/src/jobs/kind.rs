@@ -189,7 +189,7 @@ impl<K: Kind> JobKind for Registered<K> {
         serde_json::to_value(&p).map_err(|e| ParamError::new("", e.to_string()))
     }
     fn cli_command(&self) -> clap::Command {
-        K::Cli::augment_args(clap::Command::new(K::NAME.replace('_', "-")).about(K::DESCRIPTION))
+        K::Cli::augment_args(clap::Command::new(K::NAME.replace('_', "-"))).about(K::DESCRIPTION)
     }
     fn cli_params(&self, m: &ArgMatches, ctx: &CliContext<'_>) -> Result<Value, RunError> {
         let cli = K::Cli::from_arg_matches(m).map_err(|e| RunError::Input(e.to_string()))?;

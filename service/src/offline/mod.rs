@@ -40,7 +40,8 @@ pub struct CommonArgs {
 pub fn command(run: clap::Command) -> clap::Command {
     kinds().iter().fold(
         run.subcommand_required(true).arg_required_else_help(true),
-        |cmd, k| cmd.subcommand(CommonArgs::augment_args(k.cli_command())),
+        // The kind's description, not the doc comment of the flag structs, is the help text.
+        |cmd, k| cmd.subcommand(CommonArgs::augment_args(k.cli_command()).about(k.description())),
     )
 }
 
