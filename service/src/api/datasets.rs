@@ -27,7 +27,7 @@ pub fn router() -> OpenApiRouter<AppState> {
 pub struct UploadForm {
     /// One or more files: images (PNG, JPEG, TIFF incl. 16-bit) or zip archives of images;
     /// or one IMU log (CSV, optionally gzip); or one video (MP4/MOV, MKV/WebM, AVI).
-    #[schema(value_type = Vec<String>, format = Binary)]
+    #[schema(value_type = Vec<String>, format = Binary, min_items = 1)]
     file: Vec<Vec<u8>>,
     /// Optional: the expected dataset kind (`images`, `imu_log`, `video`); the content decides,
     /// and a mismatch is refused.

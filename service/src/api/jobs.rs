@@ -265,6 +265,9 @@ fn created_response(state: &AppState, created: CreateJob, dataset: Uuid) -> ApiR
 #[into_params(parameter_in = Query)]
 pub struct JobQuery {
     /// Comma-separated statuses: queued, running, succeeded, failed, canceled.
+    #[param(
+        pattern = "^(queued|running|succeeded|failed|canceled)(,(queued|running|succeeded|failed|canceled))*$"
+    )]
     pub status: Option<String>,
     /// Comma-separated job kinds.
     pub kind: Option<String>,
@@ -273,8 +276,10 @@ pub struct JobQuery {
     /// Dataset id.
     pub dataset: Option<Uuid>,
     /// Created at or after this time (RFC 3339).
+    #[param(format = DateTime)]
     pub created_after: Option<String>,
     /// Created before this time (RFC 3339).
+    #[param(format = DateTime)]
     pub created_before: Option<String>,
     /// Page size, 1–100 (default 20).
     #[param(minimum = 1, maximum = 100)]
@@ -307,6 +312,13 @@ pub async fn list_jobs(
             })
             .unwrap_or_default()
     };
+    // A given but empty list is a mistake, not "any status" (the spec's pattern says so).
+    if q.status.as_deref().is_some_and(|v| v.trim().is_empty()) {
+        return Err(
+            ApiError::new("invalid_query", "status must name at least one status")
+                .with_field("status"),
+        );
+    }
     let statuses = split(&q.status)
         .iter()
         .map(|s| {
