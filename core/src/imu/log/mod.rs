@@ -42,8 +42,6 @@ mod reader;
 
 use serde::{Deserialize, Serialize};
 
-#[cfg(test)]
-pub(crate) use number::parse_f64;
 pub use reader::read_imu_log;
 
 /// Unit of the gyroscope columns in the file.
