@@ -22,7 +22,8 @@
 //! (`5.3591573396163199e+02`), because YAML 1.1 resolvers (PyYAML, which Kalibr uses) only
 //! recognise a float when it has a dot and a signed exponent: `1e-5` would be read as a string.
 //!
-//! Files: `write` (number, string and flow-sequence formatting), `parse` (the strict reader of
+//! Files: `write` (number, string and flow-sequence formatting, including the public
+//! [`yaml_number`]), `parse` (the strict reader of
 //! the subset above into [`Node`]s), `access` (typed access to parsed values with the key named
 //! in every error) and `matrix` (OpenCV `!!opencv-matrix` and ROS `rows`/`cols`/`data`
 //! matrices). The readers serve the public importers `read_opencv_yaml`, `read_ros_yaml` and
@@ -40,4 +41,5 @@ pub(crate) use access::{
 pub(crate) use access::{parse_f32, parse_f64};
 pub(crate) use matrix::{Matrix, opencv_matrix, ros_matrix};
 pub(crate) use parse::{Node, OPENCV_MATRIX_TAG, parse};
+pub use write::yaml_number;
 pub(crate) use write::{NanStyle, flow, flow_wrapped, fmt_f32, fmt_f64, quote};

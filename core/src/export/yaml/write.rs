@@ -52,6 +52,27 @@ pub(crate) fn fmt_f64(v: f64, style: NanStyle) -> String {
     c_exponent(&format!("{v:e}"))
 }
 
+/// Formats `v` as a YAML float that reads back to the same bits (public form of [`fmt_f64`]
+/// with YAML 1.1's spelling of non-finite values).
+///
+/// A finite value always comes out as digits, a `.`, digits and, when there is an exponent, a
+/// signed one: `0.0`, `-0.0`, `640.0`, `123456789.0`, `2.0e-03`, `1.0e+20`, `5.0e-324`. That is
+/// the form all three readers Caliper's files go to type as a float:
+/// * PyYAML (YAML 1.1), and so Kalibr, which loads its files with it, resolves a plain scalar
+///   as a float only when it has a `.` and, with an exponent, a sign
+///   (`[-+]?[0-9][0-9_]*\.[0-9_]*([eE][-+][0-9]+)?`): `2e-3` and `1e-05` are read as *strings*
+///   and `640` as an integer;
+/// * OpenCV's `FileStorage` reads a plain number as a real when its leading digits are followed
+///   by `.` or `e`, as an `int` otherwise.
+///
+/// Integral values below 10¹⁵ are printed in fixed notation, all others as the shortest decimal
+/// that round-trips, in C exponent notation with at least two exponent digits. NaN and the
+/// infinities are written `.nan`, `.inf` and `-.inf` (YAML 1.1, read as floats by PyYAML);
+/// OpenCV writes `.Nan`/`.Inf` instead, which is what Caliper's OpenCV export uses.
+pub fn yaml_number(v: f64) -> String {
+    fmt_f64(v, NanStyle::Yaml)
+}
+
 /// [`fmt_f64`] for a single-precision value (OpenCV `dt: f` data).
 pub(crate) fn fmt_f32(v: f32, style: NanStyle) -> String {
     if let Some(s) = non_finite(v.is_nan(), v.is_infinite(), v < 0.0, style) {
