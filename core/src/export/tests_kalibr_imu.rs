@@ -185,3 +185,94 @@ fn kalibr_imu_yaml_upper_bounds_and_refusals() {
     let text = kalibr_imu_yaml(&v).expect("writes");
     assert!(text.contains("\nrostopic: \"imu: 0\"\n"), "{text}");
 }
+
+/// Loads `text` with PyYAML's `safe_load` and returns `{key: [type name, value]}` as JSON, or
+/// None (with a notice) when python3 or PyYAML is missing.
+fn pyyaml_types(text: &str) -> Option<serde_json::Value> {
+    use std::io::Write as _;
+    use std::process::{Command, Stdio};
+    const SCRIPT: &str = "import json, sys, yaml\n\
+        doc = yaml.safe_load(sys.stdin)\n\
+        print(json.dumps({k: [type(v).__name__, v] for k, v in doc.items()}))\n";
+    let child = Command::new("python3")
+        .args(["-c", SCRIPT])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn();
+    let Ok(mut child) = child else {
+        eprintln!("\n*** SKIPPED: no python3 ***\n");
+        return None;
+    };
+    child
+        .stdin
+        .take()
+        .expect("stdin")
+        .write_all(text.as_bytes())
+        .expect("written");
+    let out = child.wait_with_output().expect("python3 ran");
+    if !out.status.success() {
+        let err = String::from_utf8_lossy(&out.stderr);
+        if err.contains("No module named 'yaml'") {
+            eprintln!("\n*** SKIPPED: python3 has no PyYAML ***\n");
+            return None;
+        }
+        panic!("PyYAML failed: {err}");
+    }
+    Some(serde_json::from_slice(&out.stdout).expect("json"))
+}
+
+#[test]
+#[ignore = "needs python3 with PyYAML; run with --include-ignored"]
+fn pyyaml_reads_yaml_number_and_imu_yaml_as_floats() {
+    let numbers = [
+        1e-3,
+        2e-3,
+        1e20,
+        0.0,
+        -0.0,
+        1.0,
+        123456789.0,
+        5e-324,
+        f64::MIN_POSITIVE,
+        f64::MAX,
+        -2.5e-7,
+        1e15,
+        0.1 + 0.2,
+    ];
+    let text: String = numbers
+        .iter()
+        .enumerate()
+        .map(|(i, v)| format!("v{i}: {}\n", yaml_number(*v)))
+        .collect();
+    let Some(doc) = pyyaml_types(&text) else {
+        return;
+    };
+    for (i, v) in numbers.iter().enumerate() {
+        let got = &doc[format!("v{i}")];
+        assert_eq!(got[0], "float", "{text}");
+        assert_eq!(
+            got[1].as_f64().map(f64::to_bits),
+            Some(v.to_bits()),
+            "{text}"
+        );
+    }
+
+    let mut v = values();
+    v.accelerometer_random_walk = None;
+    let text = kalibr_imu_yaml(&v).expect("writes");
+    let Some(doc) = pyyaml_types(&text) else {
+        return;
+    };
+    for key in [
+        "accelerometer_noise_density",
+        "accelerometer_random_walk",
+        "gyroscope_noise_density",
+        "gyroscope_random_walk",
+        "update_rate",
+    ] {
+        assert_eq!(doc[key][0], "float", "{key}: {text}");
+    }
+    assert_eq!(doc["accelerometer_random_walk"][1].as_f64(), Some(4e-5));
+    assert_eq!(doc["rostopic"], serde_json::json!(["str", "/imu0"]));
+}
