@@ -19,11 +19,11 @@ use std::process::Command;
 use std::time::Instant;
 
 use caliper_core::NoProgress;
+use caliper_core::board::{DetectOptions, Detection, detect_chessboard};
 use caliper_core::calib::{BoardGeometry, CalibOptions, ModelKind, calibrate};
 use caliper_core::camera::CameraModel;
 use caliper_core::io::{Gray, ImageLimits, decode_gray8};
 use caliper_core::synth::{blur_gray, motion_blur_gray};
-use caliper_core::target::{DetectOptions, Detection, detect_chessboard};
 use rayon::prelude::*;
 
 mod common;

@@ -3,6 +3,7 @@
 //! callers (the worker pool, the CLI) can show progress and cancel cooperatively.
 
 pub mod blur;
+pub mod board;
 pub mod calib;
 pub mod camera;
 pub mod deconv;
@@ -18,7 +19,6 @@ pub mod photometric;
 mod plot_axis;
 pub mod progress;
 pub mod synth;
-pub mod target;
 
 pub use error::{CoreError, CoreResult};
 pub use progress::{NoProgress, Progress};

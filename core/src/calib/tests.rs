@@ -1,8 +1,10 @@
 use nalgebra::{Matrix3, Vector2, Vector3};
 
 use super::*;
-use crate::camera::{KannalaBrandt, PinholeRadTan};
-use crate::lie::So3;
+use crate::camera::{Camera, CameraModel, KannalaBrandt, PinholeRadTan};
+use crate::error::CoreError;
+use crate::lie::{Se3, So3};
+use crate::optim::RobustLoss;
 use crate::progress::{NoProgress, Progress};
 
 /// xorshift64* with Box-Muller: a deterministic Gaussian source for the synthetic sets.

@@ -12,6 +12,10 @@
 //!
 //! The exact field lists, in write order, are collected in `/work/shared/docs/formats.md`.
 //!
+//! Beside the camera formats, [`kalibr_imu_yaml`] writes Kalibr's IMU noise file (`imu.yaml`)
+//! from plain values, and [`yaml_number`] is the float formatter of every YAML file written
+//! here: it always produces a number PyYAML, OpenCV `FileStorage` and Kalibr read as a float.
+//!
 //! Design choices:
 //! * **No YAML library.** OpenCV's `%YAML:1.0` header and `!!opencv-matrix` tag break
 //!   conforming YAML parsers, so the YAML is written by hand and read by a strict reader for
@@ -28,12 +32,15 @@
 
 mod json;
 mod kalibr;
+mod kalibr_imu;
 mod opencv;
 mod ros;
 mod yaml;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_kalibr_imu;
 
 use std::fmt;
 use std::str::FromStr;
@@ -44,8 +51,10 @@ pub use json::{
     CALIBRATION_DOCUMENT_FORMAT, CALIBRATION_DOCUMENT_VERSION, CalibrationDocument, read_json,
 };
 pub use kalibr::{read_kalibr_camchain, read_kalibr_yaml};
+pub use kalibr_imu::{KalibrImuValues, kalibr_imu_yaml};
 pub use opencv::read_opencv_yaml;
 pub use ros::read_ros_yaml;
+pub use yaml::yaml_number;
 
 use crate::calib::{BoardGeometry, CalibOptions, Calibration};
 use crate::camera::Camera;

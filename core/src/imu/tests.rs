@@ -88,25 +88,9 @@ fn parses_euroc_and_rate() {
 }
 
 #[test]
-fn fast_number_parsing_matches_std() {
+fn single_pass_line_parser_matches_the_values() {
     let mut rng = Rng::new(1);
-    for _ in 0..20_000 {
-        let v = (rng.normal() * 10f64.powi((rng.uniform() * 12.0) as i32 - 6)) as f32 as f64;
-        for text in [
-            format!("{v}"),
-            format!("{v:.10e}"),
-            format!("{v:.12}"),
-            format!("{}", v.abs() as u64),
-        ] {
-            let want: f64 = text.parse().unwrap_or(f64::NAN);
-            let got = super::log::parse_f64(text.as_bytes()).unwrap_or(f64::NAN);
-            assert!(
-                want.to_bits() == got.to_bits() || (want == 0.0 && got == 0.0),
-                "{text}: {got} vs {want}"
-            );
-        }
-    }
-    // The single-pass line parser (SWAR digits) against the same values.
+    // The single-pass line parser (SWAR digits, one multiplication) against the printed values.
     let mut s = String::from(HEADER);
     s.push('\n');
     let mut want = Vec::new();

@@ -27,11 +27,11 @@
 use nalgebra::{Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
+use crate::board::filter::{ImageF, box_kernel, convolve_rows, gaussian_blur};
 use crate::camera::{Camera, CameraModel};
 use crate::error::{CoreError, CoreResult};
 use crate::io::Gray;
 use crate::lie::Se3;
-use crate::target::filter::{ImageF, box_kernel, convolve_rows, gaussian_blur};
 
 /// How to render (every field has a default).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -6,10 +6,10 @@
 //! are left out of the solve (with the reason) because motion-blurred corners bias it.
 
 use caliper_core::Progress;
+use caliper_core::board::{DetectOptions, Detection, detect_chessboard};
 use caliper_core::calib::report::{coverage, coverage_svg, residuals_svg, view_rms_svg};
 use caliper_core::calib::{BoardGeometry, CalibOptions, ModelKind, ViewObservations, calibrate};
 use caliper_core::io::{ImageLimits, decode_gray8};
-use caliper_core::target::{DetectOptions, Detection, detect_chessboard};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};

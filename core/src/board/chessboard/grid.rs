@@ -17,8 +17,8 @@ use std::collections::{BTreeMap, HashMap};
 use nalgebra::Vector2;
 
 use super::candidates::{Candidates, angle_diff_mod_pi, x_junction};
-use super::filter::ImageF;
 use super::subpix::SaddleFitter;
+use crate::board::filter::ImageF;
 use crate::calib::{homography_dlt, transfer};
 
 /// Candidates bucketed on a square grid of cells, for radius and cone queries.

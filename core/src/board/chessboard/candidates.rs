@@ -23,7 +23,7 @@
 use std::cell::OnceCell;
 use std::sync::OnceLock;
 
-use super::filter::ImageF;
+use crate::board::filter::ImageF;
 
 /// Radius of the X-junction circle test, pixels.
 pub const X_RADIUS: f64 = 4.0;

@@ -21,7 +21,7 @@
 
 use nalgebra::{Matrix2, Matrix6, Vector2, Vector6};
 
-use super::filter::ImageF;
+use crate::board::filter::ImageF;
 
 /// Precomputed least-squares operator for one window radius.
 pub struct SaddleFitter {
