@@ -19,6 +19,8 @@ pub mod photometric;
 mod plot_axis;
 pub mod progress;
 pub mod synth;
+#[cfg(test)]
+mod test_env;
 
 pub use error::{CoreError, CoreResult};
 pub use progress::{NoProgress, Progress};

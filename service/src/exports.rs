@@ -119,39 +119,30 @@ fn dso_pcalib(doc: &Value) -> Result<String, ExportError> {
     Ok(dso::write_pcalib(&inv))
 }
 
-/// Kalibr `imu.yaml` (field list: `ImuParameters` in Kalibr's `ConfigReader.py`) from an
-/// `imu_noise` document: the worst axis of each sensor. A random walk the log could not
-/// determine is written as its upper bound, with a comment saying so; without even a bound
-/// the export is refused rather than inventing a number.
+/// Kalibr `imu.yaml` from an `imu_noise` document: the worst axis of each sensor, written by
+/// `caliper_core::export::kalibr_imu_yaml` (every number a YAML 1.1 float, as Kalibr's PyYAML
+/// needs). A random walk the log could not determine is written as its upper bound, with a
+/// comment saying so; without even a bound, or without a noise density, the export is refused
+/// rather than inventing a number.
 pub fn kalibr_imu_yaml(doc: &Value) -> Result<String, ExportError> {
     let k = &doc["parameters"]["kalibr"];
-    let mut out = String::from("# Kalibr imu.yaml written by Caliper from an imu_noise document\n");
-    for (key, bound) in [
-        ("accelerometer_noise_density", None),
-        (
-            "accelerometer_random_walk",
-            Some("accelerometer_random_walk_upper_bound"),
-        ),
-        ("gyroscope_noise_density", None),
-        (
-            "gyroscope_random_walk",
-            Some("gyroscope_random_walk_upper_bound"),
-        ),
-    ] {
-        match (k[key].as_f64(), bound.and_then(|b| k[b].as_f64())) {
-            (Some(v), _) => out.push_str(&format!("{key}: {v:e}\n")),
-            (None, Some(b)) => out.push_str(&format!(
-                "{key}: {b:e}  # upper bound: the log is too short to determine it\n"
-            )),
-            (None, None) => {
-                return Err(ExportError::Unavailable(format!(
-                    "{key} could not be determined from this log; no Kalibr file can be written"
-                )));
-            }
-        }
-    }
-    let rate = k["update_rate"].as_f64().unwrap_or(0.0);
-    out.push_str("rostopic: /imu0\n");
-    out.push_str(&format!("update_rate: {rate}\n"));
-    Ok(out)
+    let need = |key: &str| {
+        k[key].as_f64().ok_or_else(|| {
+            ExportError::Unavailable(format!(
+                "{key} could not be determined from this log; no Kalibr file can be written"
+            ))
+        })
+    };
+    let values = caliper_core::export::KalibrImuValues {
+        accelerometer_noise_density: need("accelerometer_noise_density")?,
+        accelerometer_random_walk: k["accelerometer_random_walk"].as_f64(),
+        accelerometer_random_walk_upper_bound: k["accelerometer_random_walk_upper_bound"].as_f64(),
+        gyroscope_noise_density: need("gyroscope_noise_density")?,
+        gyroscope_random_walk: k["gyroscope_random_walk"].as_f64(),
+        gyroscope_random_walk_upper_bound: k["gyroscope_random_walk_upper_bound"].as_f64(),
+        update_rate: k["update_rate"].as_f64().unwrap_or(0.0),
+        rostopic: "/imu0".into(),
+    };
+    caliper_core::export::kalibr_imu_yaml(&values)
+        .map_err(|e| ExportError::Unavailable(e.to_string()))
 }

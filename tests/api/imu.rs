@@ -93,6 +93,18 @@ async fn imu_noise_recovers_white_noise_density_and_exports_kalibr() {
     let yaml = r.text().await.unwrap();
     assert!(yaml.contains("gyroscope_noise_density: "), "{yaml}");
     assert!(yaml.contains("update_rate: 200"), "{yaml}");
+    // Kalibr reads this with PyYAML (YAML 1.1), where a float needs a dot: `2e-3` would be a
+    // string. Every number must carry one.
+    for line in yaml.lines().filter(|l| !l.starts_with('#')) {
+        let (key, value) = line.split_once(": ").expect("key: value");
+        let value = value.split('#').next().unwrap_or("").trim();
+        if key != "rostopic" {
+            assert!(
+                value.contains('.') && value.parse::<f64>().is_ok(),
+                "{key}: {value:?} is not a YAML 1.1 float"
+            );
+        }
+    }
     let (_, arts) = s.get_json(&format!("/v1/jobs/{id}/artifacts")).await;
     assert_eq!(arts["items"][0]["name"], "allan.svg");
     s.stop().await;

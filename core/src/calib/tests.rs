@@ -603,22 +603,15 @@ fn invalid_inputs() {
     assert_eq!(opts, CalibOptions::default());
 }
 
-// ---------------------------------------------------------------- real data (ignored)
+// ---------------------------------------------------------------- real data (shared)
 
 fn shared_data(rel: &str) -> Option<std::path::PathBuf> {
-    let p = std::path::Path::new("/work/shared/data").join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!("\n\n!!!!!! SKIPPED: {} not found !!!!!!\n", p.display());
-        None
-    }
+    crate::test_env::shared_data(rel)
 }
 
 /// Left camera of OpenCV's stereo sample, on the corners OpenCV refined, against OpenCV 4.14's
 /// `calibrateCamera` with flags 0 (plain least squares, no rejection, as OpenCV does).
 #[test]
-#[ignore = "needs /work/shared/data; run with --ignored"]
 fn calib_opencv_stereo_left_matches_opencv() {
     let (Some(corners), Some(reference)) = (
         shared_data("camera/corners/opencv_stereo.json"),
@@ -718,10 +711,10 @@ fn calib_opencv_stereo_left_matches_opencv() {
     );
 }
 
-/// Calibration of the reported σ against repeated noise draws (prints normalised errors).
+/// The reported σ of every parameter is calibrated: over repeated noise draws, the errors
+/// normalised by their σ have an RMS near 1 (an overconfident σ gives ≫ 1, a timid one ≪ 1).
 #[test]
-#[ignore = "statistics study, prints only"]
-fn zz_seed_study() {
+fn reported_sigmas_match_the_spread_over_noise_draws() {
     let board = pinhole_board();
     let kb_board = BoardGeometry {
         cols: 4,
@@ -746,6 +739,7 @@ fn zz_seed_study() {
         ),
     ];
     for (cam, board, poses, size, kind) in cases {
+        let mut zs = Vec::new();
         for seed in 1..16 {
             let obs = synthesise(&cam, &board, &poses, size, 0.1, seed);
             let cal = calibrate(
@@ -757,14 +751,22 @@ fn zz_seed_study() {
                 &NoProgress,
             )
             .expect("calibrates");
-            let z: Vec<String> = cal
-                .parameters
-                .iter()
-                .zip(cam.params())
-                .map(|(e, t)| format!("{:+.2}", (e.value - t) / e.std_dev.unwrap_or(f64::NAN)))
-                .collect();
-            eprintln!("{kind:?} seed {seed}: sigma {:.4} z {z:?}", cal.sigma);
+            zs.extend(
+                cal.parameters
+                    .iter()
+                    .zip(cam.params())
+                    .map(|(e, t)| (e.value - t) / e.std_dev.unwrap_or(f64::NAN)),
+            );
         }
+        let rms = (zs.iter().map(|z| z * z).sum::<f64>() / zs.len() as f64).sqrt();
+        eprintln!(
+            "{kind:?}: RMS of normalised errors {rms:.2} over {} values",
+            zs.len()
+        );
+        assert!(
+            (0.5..2.0).contains(&rms),
+            "{kind:?}: σ miscalibrated, RMS z = {rms}"
+        );
     }
 }
 
@@ -773,7 +775,6 @@ fn zz_seed_study() {
 /// 4, 5, 6 as ill-conditioned). Prints both; asserts only that every view is kept and the fit
 /// is sane.
 #[test]
-#[ignore = "needs /work/shared/data; run with --ignored"]
 fn calib_boofcv_fisheye_kannala_brandt() {
     let (Some(corners), Some(reference)) = (
         shared_data("camera/corners/boofcv_fisheye_chessboard.json"),

@@ -379,64 +379,6 @@ fn ssim_matches_reference_formula_on_constant_offset() {
     assert!((ssim(&a, &b).expect("ssim") - expect).abs() < 1e-6);
 }
 
-fn load_png(path: &str) -> Option<Plane> {
-    let bytes = std::fs::read(path).ok()?;
-    let g = crate::io::decode_gray8(&bytes, &crate::io::ImageLimits::default()).ok()?;
-    Plane::from_gray(&g).ok()
-}
-
-/// Compares with the scikit-image peer on its own `--synth` input. Make the files first:
-/// `python3 ../shared/peers/deconv_skimage.py --synth --sharp ../shared/data/blur/skimage/camera.png
-/// --length 15 --angle 30 --noise 0.01 --out-blurred /tmp/c15.png --out-psf /tmp/psf15.txt`.
-#[test]
-#[ignore = "needs the peer's synthetic files in /tmp"]
-fn compare_with_peer_camera_l15() {
-    let sharp_path = "/work/shared/data/blur/skimage/camera.png";
-    let (Some(sharp), Some(blurred), Ok(text)) = (
-        load_png(sharp_path),
-        load_png("/tmp/c15.png"),
-        std::fs::read_to_string("/tmp/psf15.txt"),
-    ) else {
-        eprintln!("SKIPPED: /tmp/c15.png, /tmp/psf15.txt or {sharp_path} missing");
-        return;
-    };
-    let psf = Psf::parse_text(&text).expect("psf");
-    assert_eq!(
-        psf,
-        Psf::motion(15.0, 30.0).expect("motion").clone_rounded(&psf)
-    );
-    let report = |name: &str, est: &Plane| {
-        let p = psnr(est, &sharp, 1.0).expect("psnr");
-        let s = ssim(est, &sharp).expect("ssim");
-        eprintln!("{name}: PSNR {p:.2} dB, SSIM {s:.3}");
-        p
-    };
-    report("blurred", &blurred);
-    let t = std::time::Instant::now();
-    let w = wiener(&blurred, &psf, None).expect("wiener");
-    eprintln!("wiener took {:?}", t.elapsed());
-    report("caliper wiener", &w);
-    let t = std::time::Instant::now();
-    let r = richardson_lucy(&blurred, &psf, 30, &NoProgress).expect("rl");
-    eprintln!("rl 30 took {:?}", t.elapsed());
-    report("caliper rl 30", &r);
-    let r = richardson_lucy(&blurred, &psf, 60, &NoProgress).expect("rl");
-    report("caliper rl 60", &r);
-}
-
-impl Psf {
-    /// The kernel with `other`'s values where they agree to 1e-9 (savetxt's %.10g is lossy).
-    fn clone_rounded(&self, other: &Psf) -> Psf {
-        let mut out = self.clone();
-        for (a, b) in out.data.iter_mut().zip(&other.data) {
-            if (*a - *b).abs() < 1e-9 {
-                *a = *b;
-            }
-        }
-        out
-    }
-}
-
 /// Issue D12: weights so large that their sum overflows still normalise (scaled by the peak).
 #[test]
 fn huge_finite_weights_normalise() {

@@ -430,23 +430,10 @@ Per_View_Reprojection_Errors: !!opencv-matrix
     assert_eq!(r.per_view_reprojection_errors, [0.25, 0.75]);
 }
 
-/// `left_intrinsics.yml` as written by OpenCV's `samples/cpp/calibration.cpp`.
-const OPENCV_STEREO_DIR: &str = "/work/shared/data/camera/opencv_stereo";
-
+/// A file of OpenCV's stereo sample (`left_intrinsics.yml` as written by OpenCV's
+/// `samples/cpp/calibration.cpp`) from the shared data.
 fn shared_file(name: &str) -> Option<PathBuf> {
-    let dir = std::env::var_os("CALIPER_OPENCV_STEREO_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(OPENCV_STEREO_DIR));
-    let path = dir.join(name);
-    if path.is_file() {
-        Some(path)
-    } else {
-        eprintln!(
-            "\n*** SKIPPED: {} is absent (set CALIPER_OPENCV_STEREO_DIR) ***\n",
-            path.display()
-        );
-        None
-    }
+    crate::test_env::shared_data(&format!("camera/opencv_stereo/{name}"))
 }
 
 #[test]
@@ -1112,32 +1099,16 @@ impl Drop for TempFile {
     }
 }
 
-/// Runs `python3 -c script args…`; `None` (after a loud message) when python3 or a module is
-/// missing.
+/// Runs `<python> -c script args…`; `None` (after a loud message) when no Python with
+/// `modules` is available (see [`crate::test_env::python`]).
 fn python(script: &str, args: &[&Path], modules: &str) -> Option<String> {
-    let probe = Command::new("python3")
-        .args(["-c", &format!("import {modules}")])
-        .output();
-    match probe {
-        Ok(o) if o.status.success() => {}
-        Ok(o) => {
-            eprintln!(
-                "\n*** SKIPPED: python3 cannot import {modules}: {} ***\n",
-                String::from_utf8_lossy(&o.stderr).trim()
-            );
-            return None;
-        }
-        Err(e) => {
-            eprintln!("\n*** SKIPPED: python3 not runnable: {e} ***\n");
-            return None;
-        }
-    }
-    let out = Command::new("python3")
+    let py = crate::test_env::python(modules)?;
+    let out = Command::new(py)
         .arg("-c")
         .arg(script)
         .args(args)
         .output()
-        .expect("python3 runs");
+        .expect("python runs");
     assert!(
         out.status.success(),
         "python failed:\n{}",
@@ -1192,7 +1163,6 @@ fs.release()
 "#;
 
 #[test]
-#[ignore = "needs python3 with opencv-python (cv2); run with --include-ignored"]
 fn opencv_itself_reads_our_yaml_and_we_read_its() {
     for camera in [pinhole(0.123_456_789_012_345_6), kannala_brandt()] {
         let c = calibration(camera);
@@ -1292,7 +1262,6 @@ print(json.dumps(doc))
 "#;
 
 #[test]
-#[ignore = "needs python3 with PyYAML; run with --include-ignored"]
 fn pyyaml_reads_our_ros_and_kalibr_files_as_numbers() {
     for camera in [pinhole(0.0), kannala_brandt(), double_sphere()] {
         let c = calibration(camera);

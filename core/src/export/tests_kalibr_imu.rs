@@ -194,7 +194,10 @@ fn pyyaml_types(text: &str) -> Option<serde_json::Value> {
     const SCRIPT: &str = "import json, sys, yaml\n\
         doc = yaml.safe_load(sys.stdin)\n\
         print(json.dumps({k: [type(v).__name__, v] for k, v in doc.items()}))\n";
-    let child = Command::new("python3")
+    let Some(py) = crate::test_env::python("yaml") else {
+        return None;
+    };
+    let child = Command::new(py)
         .args(["-c", SCRIPT])
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
@@ -223,7 +226,6 @@ fn pyyaml_types(text: &str) -> Option<serde_json::Value> {
 }
 
 #[test]
-#[ignore = "needs python3 with PyYAML; run with --include-ignored"]
 fn pyyaml_reads_yaml_number_and_imu_yaml_as_floats() {
     let numbers = [
         1e-3,

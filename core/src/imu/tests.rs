@@ -622,22 +622,12 @@ fn thermal_recovers_a_known_cubic() {
 // ------------------------------------------------------------------ shared sample data
 
 fn shared(name: &str) -> Option<(std::path::PathBuf, serde_json::Value)> {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/imu");
-    let csv = dir.join(format!("{name}.csv"));
-    let truth = dir.join(format!("{name}_truth.json"));
+    let csv = crate::test_env::shared_data(&format!("imu/{name}.csv"))?;
+    let truth = crate::test_env::shared_data(&format!("imu/{name}_truth.json"))?;
     let t = std::fs::read_to_string(&truth)
         .ok()
-        .and_then(|s| serde_json::from_str(&s).ok());
-    match (csv.exists(), t) {
-        (true, Some(t)) => Some((csv, t)),
-        _ => {
-            eprintln!(
-                "\n!!!!!! SKIPPED: {} or its truth file is missing !!!!!!\n",
-                csv.display()
-            );
-            None
-        }
-    }
+        .and_then(|s| serde_json::from_str(&s).ok())?;
+    Some((csv, t))
 }
 
 fn open(p: &std::path::Path) -> std::io::BufReader<std::fs::File> {
@@ -645,7 +635,6 @@ fn open(p: &std::path::Path) -> std::io::BufReader<std::fs::File> {
 }
 
 #[test]
-#[ignore = "data-driven: reads ../shared/data/imu"]
 fn shared_static_5min() {
     let Some((csv, truth)) = shared("static_5min_200hz") else {
         return;
@@ -680,7 +669,6 @@ fn shared_static_5min() {
 }
 
 #[test]
-#[ignore = "data-driven: reads ../shared/data/imu"]
 fn shared_multipos() {
     let Some((csv, truth)) = shared("multipos_100hz") else {
         return;
@@ -721,7 +709,6 @@ fn shared_multipos() {
 }
 
 #[test]
-#[ignore = "data-driven: reads ../shared/data/imu"]
 fn shared_thermal() {
     let Some((csv, truth)) = shared("thermal_50hz") else {
         return;

@@ -362,23 +362,11 @@ fn calibration_on_detected_corners_recovers_the_camera() {
     assert!((p[2] - t[2]).abs() < 1.0 && (p[3] - t[3]).abs() < 1.0);
 }
 
-// ---- Shared real data (ignored: run with `cargo test -p caliper-core -- --ignored`) ----
+// ---- Shared real data (`CALIPER_SHARED_DATA`, or the project's sibling `../shared/data`) ----
 
-/// `$CALIPER_SHARED_DATA/camera`, else `<workspace>/../shared/data/camera`, else
-/// `/work/shared/data/camera`.
+/// The shared data's `camera/` folder (see [`crate::test_env::shared_data`]).
 fn shared_camera_dir() -> Option<std::path::PathBuf> {
-    let candidates = [
-        std::env::var("CALIPER_SHARED_DATA")
-            .ok()
-            .map(|d| std::path::Path::new(&d).join("camera")),
-        Some(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/camera")),
-        Some(std::path::PathBuf::from("/work/shared/data/camera")),
-    ];
-    let found = candidates.into_iter().flatten().find(|d| d.is_dir());
-    if found.is_none() {
-        println!("!!!!! shared data (camera/) not found: test skipped !!!!!");
-    }
-    found
+    crate::test_env::shared_data("camera")
 }
 
 fn detect_set(
@@ -407,7 +395,6 @@ fn opencv_corners(json: &serde_json::Value, name: &str) -> Option<Vec<[f64; 2]>>
 }
 
 #[test]
-#[ignore = "needs /work/shared/data"]
 fn shared_opencv_stereo() {
     let Some(root) = shared_camera_dir() else {
         return;
@@ -469,7 +456,6 @@ fn shared_opencv_stereo() {
 }
 
 #[test]
-#[ignore = "needs /work/shared/data"]
 fn shared_boofcv_fisheye() {
     let Some(root) = shared_camera_dir() else {
         return;
