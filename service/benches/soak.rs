@@ -5,7 +5,8 @@
 //! device has exactly one document revision, and no revision cites a job twice.
 //!
 //! Run: `cargo bench -p caliper-service --bench soak`. Env: `SOAK_SECS` (default 1800),
-//! `SOAK_KILL_SECS` (default 180, the time between kills), `SOAK_CLIENTS` (default 4).
+//! `SOAK_KILL_SECS` (default 180, the time between kills), `SOAK_CLIENTS` (default 4),
+//! `SOAK_BIN` (a `caliper` binary to use instead of building the release one).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::io::{BufRead, BufReader};
