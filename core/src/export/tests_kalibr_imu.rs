@@ -194,9 +194,7 @@ fn pyyaml_types(text: &str) -> Option<serde_json::Value> {
     const SCRIPT: &str = "import json, sys, yaml\n\
         doc = yaml.safe_load(sys.stdin)\n\
         print(json.dumps({k: [type(v).__name__, v] for k, v in doc.items()}))\n";
-    let Some(py) = crate::test_env::python("yaml") else {
-        return None;
-    };
+    let py = crate::test_env::python("yaml")?;
     let child = Command::new(py)
         .args(["-c", SCRIPT])
         .stdin(Stdio::piped())
