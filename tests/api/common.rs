@@ -249,3 +249,51 @@ pub fn caliper_bin() -> PathBuf {
     assert!(bin.exists(), "no binary at {}", bin.display());
     bin
 }
+
+/// A `caliper serve` process on `127.0.0.1:0`, killed when dropped (a failing assertion must
+/// not leave a server running).
+pub struct Proc {
+    pub child: std::process::Child,
+    pub base: String,
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Start `bin serve` on `data` with one worker, fast heartbeats and `extra` flags; returns once
+/// it listens.
+pub fn spawn_caliper(bin: &std::path::Path, data: &std::path::Path, extra: &[&str]) -> Proc {
+    use std::io::BufRead;
+    let mut child = Command::new(bin)
+        .args([
+            "serve",
+            "--listen",
+            "127.0.0.1:0",
+            "--workers",
+            "1",
+            "--heartbeat-ms",
+            "100",
+        ])
+        .args(extra)
+        .arg("--data-dir")
+        .arg(data)
+        .env("RUST_LOG", "warn")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::inherit())
+        .spawn()
+        .expect("spawn caliper");
+    let mut line = String::new();
+    std::io::BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("read line");
+    let base = line
+        .trim()
+        .strip_prefix("caliper listening on ")
+        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
+        .to_string();
+    Proc { child, base }
+}

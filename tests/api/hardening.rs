@@ -2,8 +2,7 @@
 //! job body that ignores its stop request, a delete racing a re-upload of the same bytes, and
 //! shutdowns that burned the retry budget.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use serde_json::json;
@@ -88,35 +87,12 @@ async fn a_job_that_never_returns_is_failed_at_its_time_limit_and_its_slot_reuse
 #[test]
 fn sigterm_exits_within_the_grace_period_whatever_a_job_does() {
     let dir = tempfile::tempdir().unwrap();
-    let mut child = Command::new(caliper_bin())
-        .args([
-            "serve",
-            "--listen",
-            "127.0.0.1:0",
-            "--workers",
-            "1",
-            "--heartbeat-ms",
-            "100",
-            "--debug-job-kinds",
-            "--shutdown-grace-secs",
-            "2",
-        ])
-        .arg("--data-dir")
-        .arg(dir.path().join("data"))
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("spawn caliper");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("read line");
-    let base = line
-        .trim()
-        .strip_prefix("caliper listening on ")
-        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-        .to_string();
+    let mut proc = spawn_caliper(
+        &caliper_bin(),
+        &dir.path().join("data"),
+        &["--debug-job-kinds", "--shutdown-grace-secs", "2"],
+    );
+    let base = proc.base.clone();
     let rt = tokio::runtime::Runtime::new().unwrap();
     let client = reqwest::Client::new();
     let id = rt.block_on(async {
@@ -163,15 +139,15 @@ fn sigterm_exits_within_the_grace_period_whatever_a_job_does() {
     });
     let t0 = Instant::now();
     Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
+        .args(["-TERM", &proc.child.id().to_string()])
         .status()
         .unwrap();
     let status = loop {
-        if let Some(st) = child.try_wait().unwrap() {
+        if let Some(st) = proc.child.try_wait().unwrap() {
             break st;
         }
         if t0.elapsed() > Duration::from_secs(6) {
-            let _ = child.kill();
+            let _ = proc.child.kill();
             panic!(
                 "still alive {:?} after SIGTERM with a 2 s grace",
                 t0.elapsed()

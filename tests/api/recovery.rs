@@ -1,60 +1,12 @@
 //! Crash recovery: SIGKILL the `caliper` binary mid-job, start it again on the same data
 //! directory, and the job completes exactly once.
 
-use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 use std::time::Duration;
 
 use serde_json::{Value, json};
 
 use crate::common::*;
-
-struct Proc {
-    child: Child,
-    base: String,
-}
-
-/// A failing assertion must not leave a server running.
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn spawn(bin: &PathBuf, data: &std::path::Path) -> Proc {
-    let mut child = Command::new(bin)
-        .args([
-            "serve",
-            "--listen",
-            "127.0.0.1:0",
-            "--workers",
-            "1",
-            "--heartbeat-ms",
-            "100",
-            "--lease-secs",
-            "3",
-        ])
-        .arg("--data-dir")
-        .arg(data)
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("spawn caliper");
-    let stdout = child.stdout.take().expect("stdout");
-    let mut line = String::new();
-    BufReader::new(stdout)
-        .read_line(&mut line)
-        .expect("read line");
-    let base = line
-        .trim()
-        .strip_prefix("caliper listening on ")
-        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-        .to_string();
-    Proc { child, base }
-}
 
 async fn get(client: &reqwest::Client, url: String) -> Value {
     client
@@ -74,7 +26,7 @@ async fn killed_server_resumes_its_job_and_completes_it_once() {
     let data = dir.path().join("data");
     let client = reqwest::Client::new();
 
-    let mut p = spawn(&bin, &data);
+    let mut p = spawn_caliper(&bin, &data, &["--lease-secs", "3"]);
     let files = slow_dataset(60);
     let mut form = reqwest::multipart::Form::new();
     for (n, b) in &files {
@@ -121,7 +73,7 @@ async fn killed_server_resumes_its_job_and_completes_it_once() {
     p.child.kill().expect("kill");
     p.child.wait().expect("wait");
 
-    let mut p = spawn(&bin, &data);
+    let mut p = spawn_caliper(&bin, &data, &["--lease-secs", "3"]);
     let deadline = std::time::Instant::now() + Duration::from_secs(90);
     let done = loop {
         let j = get(&client, format!("{}/v1/jobs/{id}", p.base)).await;
