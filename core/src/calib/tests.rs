@@ -1,3 +1,6 @@
+//! Tests of camera calibration: synthetic boards with known truth, uncertainty, rejection, and
+//! the shared real sets against OpenCV (over 600 lines: one file of tests for the module).
+
 use nalgebra::{Matrix3, Vector2, Vector3};
 
 use super::*;

@@ -1,3 +1,6 @@
+//! Tests of the exports: every format written and read back, OpenCV's and PyYAML's readings of
+//! our files, and OpenCV's own files read (over 600 lines: one file of tests for the module).
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

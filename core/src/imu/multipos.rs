@@ -1,4 +1,5 @@
-//! Multi-position IMU calibration without external equipment (`imu_intrinsics`).
+//! Multi-position IMU calibration without external equipment (`imu_intrinsics`). Slightly over
+//! 600 lines: detection of static poses and the two fits share their types and helpers.
 //!
 //! Tedaldi, Pretto & Menegatti, "A robust and easy to implement method for IMU calibration
 //! without external equipments", ICRA 2014 (the imu_tk method), with the conventions of the peer

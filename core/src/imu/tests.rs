@@ -1,5 +1,6 @@
 //! Tests of the IMU module: parser edge cases, Allan deviation on generated noise, multi-position
-//! and thermal recovery of known parameters, and (ignored) checks on the shared sample data.
+//! and thermal recovery of known parameters, and checks on the shared sample data (over 600
+//! lines: one file of tests for the whole module).
 
 use std::fmt::Write as _;
 
