@@ -237,9 +237,12 @@ async fn main() {
     let secs = env_u64("SOAK_SECS", 1800);
     let kill_every = env_u64("SOAK_KILL_SECS", 180);
     let clients = env_u64("SOAK_CLIENTS", 4);
-    let bin = tokio::task::spawn_blocking(caliper_release)
-        .await
-        .expect("build");
+    let bin = match std::env::var_os("SOAK_BIN") {
+        Some(b) => PathBuf::from(b),
+        None => tokio::task::spawn_blocking(caliper_release)
+            .await
+            .expect("build"),
+    };
     let dir = tempfile::tempdir().expect("tempdir");
     let data = dir.path().join("data");
     let mut server = start(&bin, &data);
