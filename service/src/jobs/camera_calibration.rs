@@ -179,8 +179,7 @@ impl Kind for CameraCalibration {
             params["model"] = json!(m);
         }
         if let Some(o) = &a.options {
-            params["options"] = serde_json::from_str(o)
-                .map_err(|e| RunError::Input(format!("--options is not JSON: {e}")))?;
+            params["options"] = crate::jobs::kind::json_flag("options", o)?;
         }
         Ok(params)
     }

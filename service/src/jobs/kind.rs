@@ -228,9 +228,13 @@ impl JsonParams {
     /// The parameters object (`{}` when none given).
     pub fn value(&self) -> Result<Value, RunError> {
         match &self.params {
-            Some(p) => serde_json::from_str(p)
-                .map_err(|e| RunError::Input(format!("--params is not JSON: {e}"))),
+            Some(p) => json_flag("params", p),
             None => Ok(Value::Object(Default::default())),
         }
     }
+}
+
+/// The JSON value of the command-line flag `--<name>`.
+pub fn json_flag(name: &str, text: &str) -> Result<Value, RunError> {
+    serde_json::from_str(text).map_err(|e| RunError::Input(format!("--{name} is not JSON: {e}")))
 }

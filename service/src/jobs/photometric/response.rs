@@ -78,8 +78,7 @@ impl Kind for PhotometricResponse {
         };
         let mut params = json!({"exposure_times": times});
         if let Some(o) = &a.options {
-            params["options"] = serde_json::from_str(o)
-                .map_err(|e| RunError::Input(format!("--options is not JSON: {e}")))?;
+            params["options"] = crate::jobs::kind::json_flag("options", o)?;
         }
         Ok(params)
     }
