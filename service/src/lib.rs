@@ -11,6 +11,7 @@ pub mod blobs;
 pub mod clock;
 pub mod config;
 pub mod document;
+pub mod document_diff;
 pub mod error;
 pub mod exports;
 pub mod http_server;

@@ -14,7 +14,7 @@ const TRUTH: [f64; 9] = [
 ];
 
 /// Ten views of a 9×6 board (25 mm squares) around 0.45 m, tilted up to ~35°.
-fn renders() -> Vec<(String, Vec<u8>)> {
+pub(crate) fn renders() -> Vec<(String, Vec<u8>)> {
     let camera: Camera = PinholeRadTan::from_slice(&TRUTH).expect("camera").into();
     let (cols, rows, sq) = (9usize, 6usize, 0.025);
     let centre = Vector3::new(

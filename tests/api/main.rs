@@ -3,8 +3,10 @@
 //! One test binary (link time), one module per area. Inputs are rendered in-test; nothing
 //! here needs files outside the repository.
 
+mod browser;
 mod camera;
 mod common;
+mod dashboard;
 mod datasets;
 mod deblur;
 mod documents;

@@ -19,6 +19,7 @@ pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(upload_dataset, list_datasets))
         .routes(routes!(get_dataset, delete_dataset))
+        .routes(routes!(get_dataset_file))
 }
 
 /// Multipart form of an upload (for the OpenAPI description; the handler streams it).
@@ -132,6 +133,52 @@ pub async fn get_dataset(
         .await?
         .ok_or_else(|| ApiError::not_found(format!("dataset {id}")))?;
     Ok(axum::Json(ds.into()))
+}
+
+/// Download one file of a dataset, by its position in `files` (from 0).
+///
+/// The bytes as uploaded (for a zip upload: the extracted file), with the media type found
+/// at upload and the file's SHA-256 as its ETag.
+#[utoipa::path(
+    get, path = "/v1/datasets/{id}/files/{index}", tag = "datasets",
+    params(("id" = Uuid, Path, description = "Dataset id"),
+           ("index" = u32, Path, description = "Position of the file in the dataset's `files`, from 0")),
+    responses(
+        (status = 200, description = "The file", content_type = "application/octet-stream", body = Vec<u8>),
+        (status = 404, description = "No such dataset or file", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn get_dataset_file(
+    State(state): State<AppState>,
+    ApiPath((id, index)): ApiPath<(Uuid, u32)>,
+) -> ApiResult<axum::response::Response> {
+    use axum::http::HeaderValue;
+    let ds = state
+        .store()
+        .get_dataset(id)
+        .await?
+        .ok_or_else(|| ApiError::not_found(format!("dataset {id}")))?;
+    let f = ds
+        .files
+        .get(index as usize)
+        .ok_or_else(|| ApiError::not_found(format!("file {index} of dataset {id}")))?;
+    let stream = state
+        .blobs()
+        .stream(&f.sha256)
+        .await
+        .map_err(|_| ApiError::not_found(format!("file {index} of dataset {id}")))?;
+    let mut resp = axum::body::Body::from_stream(stream).into_response();
+    let h = resp.headers_mut();
+    if let Ok(v) = HeaderValue::from_str(&f.size.to_string()) {
+        h.insert(header::CONTENT_LENGTH, v);
+    }
+    if let Ok(v) = HeaderValue::from_str(&f.media_type) {
+        h.insert(header::CONTENT_TYPE, v);
+    }
+    if let Ok(v) = HeaderValue::from_str(&format!("\"{}\"", f.sha256)) {
+        h.insert(header::ETAG, v);
+    }
+    Ok(resp)
 }
 
 /// Delete a dataset.

@@ -12,6 +12,7 @@ use super::extract::{ApiPath, ApiQuery};
 use crate::clock::rfc3339;
 use crate::error::{ApiError, ApiResult, Problem};
 use crate::state::AppState;
+use crate::document_diff::DiffEntry;
 use crate::store::DocumentSummary;
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -19,6 +20,7 @@ pub fn router() -> OpenApiRouter<AppState> {
         .routes(routes!(list_device_documents))
         .routes(routes!(list_revisions))
         .routes(routes!(latest_document))
+        .routes(routes!(diff_revisions))
         .routes(routes!(document_revision))
 }
 
@@ -39,7 +41,42 @@ pub struct RevisionView {
     pub created_at: String,
     /// The job that wrote it.
     pub job: Option<uuid::Uuid>,
+    /// The dataset it was computed from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dataset: Option<uuid::Uuid>,
+    /// The software that wrote it, e.g. `caliper 0.1.0`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub software: Option<String>,
+    /// The document's `quality` object.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub quality: Option<serde_json::Value>,
     pub href: String,
+}
+
+/// Two revisions of a document compared.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct RevisionDiff {
+    pub device: String,
+    pub sensor: String,
+    pub kind: String,
+    pub from: u64,
+    pub to: u64,
+    /// Values compared, the older revision's order first; see [`DiffEntry`].
+    pub entries: Vec<DiffEntry>,
+    /// How many of the entries differ.
+    pub changed: usize,
+}
+
+/// `?from=&to=` of a diff.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct DiffQuery {
+    /// The older revision, from 1.
+    pub from: u64,
+    /// The newer revision, from 1.
+    pub to: u64,
 }
 
 /// `?format=` of document reads.
@@ -149,13 +186,27 @@ pub async fn list_revisions(
     }
     Ok(axum::Json(
         revs.into_iter()
-            .map(|d| RevisionView {
-                href: format!("/v1/devices/{serial}/documents/{sensor}/{kind}/{}", d.rev),
-                rev: d.rev,
-                etag: d.etag,
-                schema: d.schema,
-                created_at: rfc3339(d.created_at),
-                job: d.job_id,
+            .map(|d| {
+                // Provenance is read from the sealed body: the store keeps it only there.
+                let body: serde_json::Value =
+                    serde_json::from_str(&d.body).unwrap_or(serde_json::Value::Null);
+                let prov = &body["provenance"];
+                let software = prov["software"]["name"].as_str().map(|n| {
+                    format!("{n} {}", prov["software"]["version"].as_str().unwrap_or("?"))
+                });
+                RevisionView {
+                    href: format!("/v1/devices/{serial}/documents/{sensor}/{kind}/{}", d.rev),
+                    rev: d.rev,
+                    etag: d.etag,
+                    schema: d.schema,
+                    created_at: rfc3339(d.created_at),
+                    job: d.job_id,
+                    dataset: prov["dataset"]
+                        .as_str()
+                        .and_then(|s| uuid::Uuid::parse_str(s).ok()),
+                    software,
+                    quality: body.get("quality").cloned().filter(|q| !q.is_null()),
+                }
             })
             .collect(),
     ))
@@ -222,4 +273,58 @@ pub async fn document_revision(
             ))
         })?;
     document_response(d.body, &d.etag, q.format.as_deref(), &headers)
+}
+
+/// Compare two revisions of a document: every estimated value side by side, with its change
+/// in standard deviations where the document gives σ.
+#[utoipa::path(
+    get, path = "/v1/devices/{serial}/documents/{sensor}/{kind}/diff", tag = "documents",
+    params(("serial" = String, Path, description = "Device serial"),
+           ("sensor" = String, Path, description = "Sensor name"),
+           ("kind" = String, Path, description = "Job kind"),
+           DiffQuery),
+    responses(
+        (status = 200, description = "The comparison", body = RevisionDiff),
+        (status = 400, description = "Invalid query", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No such document or revision", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+pub async fn diff_revisions(
+    State(state): State<AppState>,
+    ApiPath((serial, sensor, kind)): ApiPath<(String, String, String)>,
+    ApiQuery(q): ApiQuery<DiffQuery>,
+) -> ApiResult<axum::Json<RevisionDiff>> {
+    for (name, rev) in [("from", q.from), ("to", q.to)] {
+        if rev == 0 || rev > i64::MAX as u64 {
+            return Err(
+                ApiError::new("invalid_query", format!("{name} must be a revision, from 1"))
+                    .with_field(name),
+            );
+        }
+    }
+    let mut docs = Vec::with_capacity(2);
+    for rev in [q.from, q.to] {
+        let d = state
+            .store()
+            .get_document(&serial, &sensor, &kind, Some(rev))
+            .await?
+            .ok_or_else(|| {
+                ApiError::not_found(format!(
+                    "revision {rev} of document {kind} of {serial}/{sensor}"
+                ))
+            })?;
+        let body: serde_json::Value = serde_json::from_str(&d.body).map_err(ApiError::internal)?;
+        docs.push(body);
+    }
+    let entries = crate::document_diff::diff(&docs[0], &docs[1]);
+    let changed = entries.iter().filter(|e| e.changed).count();
+    Ok(axum::Json(RevisionDiff {
+        device: serial,
+        sensor,
+        kind,
+        from: q.from,
+        to: q.to,
+        entries,
+        changed,
+    }))
 }

@@ -67,7 +67,7 @@ fn empty_object() -> Value {
     Value::Object(Default::default())
 }
 
-fn valid_name(s: &str) -> bool {
+pub(crate) fn valid_name(s: &str) -> bool {
     !s.is_empty()
         && s.len() <= 128
         && s.chars()
@@ -613,6 +613,7 @@ pub async fn list_job_kinds() -> axum::Json<Vec<JobKindView>> {
                 dataset_kind: k.dataset_kind(),
                 description: k.description().into(),
                 params_schema: k.params_schema(),
+                exports: k.exports().iter().map(Into::into).collect(),
             })
             .collect(),
     )

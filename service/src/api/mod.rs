@@ -3,10 +3,12 @@
 //! from the code.
 
 pub mod datasets;
+pub mod devices;
 pub mod documents;
 pub mod extract;
 pub mod health;
 pub mod jobs;
+pub mod ui;
 pub mod views;
 
 use std::time::Instant;
@@ -119,6 +121,7 @@ fn routes(max_upload: usize) -> OpenApiRouter<AppState> {
                     refuse_declared_oversize,
                 )),
         )
+        .merge(devices::router())
         .merge(documents::router())
         .merge(health::router())
 }
@@ -138,6 +141,7 @@ pub fn app(state: AppState) -> Router {
     let body_timeout = std::time::Duration::from_secs(state.config().body_timeout_secs);
     router
         .merge(SwaggerUi::new("/docs").url("/openapi.json", api))
+        .merge(ui::router())
         .fallback(fallback)
         // A body that stalls (a trickled upload, a declared length never sent) is dropped
         // after `body_timeout_secs` without data, releasing its temporary file.

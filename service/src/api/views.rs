@@ -214,4 +214,35 @@ pub struct JobKindView {
     /// JSON Schema of `params`.
     #[schema(value_type = Object)]
     pub params_schema: Value,
+    /// Export formats of its documents (`?format=` of the document routes).
+    #[serde(default)]
+    pub exports: Vec<ExportView>,
+}
+
+/// An export format of a kind's documents.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct ExportView {
+    /// The `format` query value, e.g. `opencv-yaml`.
+    pub format: String,
+    /// Media type of the export.
+    pub media_type: String,
+    /// A file name extension for it, e.g. `yaml`.
+    pub extension: String,
+}
+
+impl From<&crate::jobs::Export> for ExportView {
+    fn from(e: &crate::jobs::Export) -> Self {
+        let essence = e.media_type.split(';').next().unwrap_or("").trim();
+        let extension = match essence {
+            "application/json" => "json",
+            "application/yaml" | "text/yaml" | "application/x-yaml" => "yaml",
+            _ if e.format.ends_with("yaml") => "yaml",
+            _ => "txt",
+        };
+        Self {
+            format: e.format.to_owned(),
+            media_type: e.media_type.to_owned(),
+            extension: extension.to_owned(),
+        }
+    }
 }

@@ -262,6 +262,32 @@ pub struct DocumentSummary {
     pub etag: String,
     /// RFC 3339.
     pub created_at: String,
+    /// The job that wrote the latest revision.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub job: Option<Uuid>,
+    /// The document's `quality` object (headline numbers such as `rms` or `coverage`), so a
+    /// fleet view can show a badge without fetching every document.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub quality: Option<Value>,
+}
+
+/// One device and the latest revision of each of its documents.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct DeviceSummary {
+    pub serial: String,
+    /// Latest revision per (sensor, kind), ordered by sensor then kind.
+    pub documents: Vec<DocumentSummary>,
+}
+
+/// A page of devices in serial order.
+#[derive(Debug, Clone, Default)]
+pub struct DeviceQuery {
+    /// Case-insensitive substring of the serial.
+    pub search: Option<String>,
+    /// Only serials after this one (the cursor).
+    pub after: Option<String>,
+    pub limit: u32,
 }
 
 /// An artifact produced by a job (plot, image), stored as a content-addressed blob.
@@ -390,6 +416,11 @@ pub trait JobQueue: Send + Sync {
 #[async_trait]
 pub trait DocumentStore: Send + Sync {
     async fn list_documents(&self, device: &str) -> StoreResult<Vec<DocumentSummary>>;
+    /// Devices that have documents, in serial order, at most `limit` (callers ask one more
+    /// to learn whether a next page exists), with their latest documents.
+    async fn list_devices(&self, q: &DeviceQuery) -> StoreResult<Vec<DeviceSummary>>;
+    /// How many devices match `search` (all devices when `None`).
+    async fn count_devices(&self, search: Option<&str>) -> StoreResult<u64>;
     async fn get_document(
         &self,
         device: &str,
