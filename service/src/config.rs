@@ -27,6 +27,13 @@ macro_rules! settings {
             /// Enables the `debug_hang` job kind (never returns, ignores cancellation) used by
             /// the test-suite to prove the worker's watchdog; never listed in the API or spec.
             pub debug_job_kinds: bool,
+            /// Require bearer tokens even on a loopback address (always required beyond it,
+            /// unless `insecure_no_auth`).
+            pub auth: bool,
+            /// Serve without tokens on a non-loopback address (a lab behind its own gate).
+            pub insecure_no_auth: bool,
+            /// Serve `/metrics` without a token when auth is on.
+            pub metrics_public: bool,
         }
 
         impl Default for Config {
@@ -35,6 +42,9 @@ macro_rules! settings {
                     $( $name: $default, )*
                     time_limits: BTreeMap::new(),
                     debug_job_kinds: false,
+                    auth: false,
+                    insecure_no_auth: false,
+                    metrics_public: false,
                 }
             }
         }
@@ -53,6 +63,15 @@ macro_rules! settings {
             /// Test-suite only: enable the `debug_hang` job kind.
             #[arg(long, env = "CALIPER_DEBUG_JOB_KINDS", hide = true)]
             pub debug_job_kinds: bool,
+            /// Require bearer tokens even on loopback (always required on other addresses).
+            #[arg(long, env = "CALIPER_AUTH")]
+            pub auth: bool,
+            /// Serve without tokens on a non-loopback address (refused otherwise).
+            #[arg(long, env = "CALIPER_INSECURE_NO_AUTH", conflicts_with = "auth")]
+            pub insecure_no_auth: bool,
+            /// Serve /metrics without a token when tokens are required.
+            #[arg(long, env = "CALIPER_METRICS_PUBLIC")]
+            pub metrics_public: bool,
         }
 
         /// The TOML file: the same keys as the flags, all optional.
@@ -72,6 +91,9 @@ macro_rules! settings {
                     $( $name: self.$name.clone().or(file.$name).unwrap_or(d.$name), )*
                     time_limits: file.time_limits,
                     debug_job_kinds: self.debug_job_kinds,
+                    auth: self.auth,
+                    insecure_no_auth: self.insecure_no_auth,
+                    metrics_public: self.metrics_public,
                 }
             }
         }
@@ -155,6 +177,17 @@ settings! {
     /// Open HTTP connections at most; further ones wait in the kernel's backlog.
     max_connections: usize = 512,
         env "CALIPER_MAX_CONNECTIONS", help "Open HTTP connections at most [default: 512].";
+    /// Requests per second each token may make on average (0: no limit); over it, 429 with
+    /// `Retry-After`. Applies when tokens are required.
+    rate_limit_per_sec: u32 = 100,
+        env "CALIPER_RATE_LIMIT_PER_SEC", help "Requests per second per token when tokens are required; 0 = unlimited [default: 100].";
+    /// Requests a token may make in a burst above the average rate.
+    rate_limit_burst: u32 = 200,
+        env "CALIPER_RATE_LIMIT_BURST", help "Burst of requests per token above the rate [default: 200].";
+    /// Browser origins allowed to call the API (CORS), comma-separated, e.g.
+    /// `https://dash.example.com`; empty: none (the built-in dashboard is same-origin).
+    cors_origins: String = String::new(),
+        env "CALIPER_CORS_ORIGINS", help "Comma-separated origins allowed by CORS [default: none].";
 }
 
 /// A configuration that cannot be used.
@@ -244,6 +277,20 @@ impl Config {
         if self.max_connections == 0 {
             return bad("max_connections must be at least 1");
         }
+        if self.rate_limit_per_sec > 0 && self.rate_limit_burst == 0 {
+            return bad("rate_limit_burst must be at least 1 when rate_limit_per_sec is set");
+        }
+        for o in self.cors_list() {
+            if !(o.starts_with("http://") || o.starts_with("https://"))
+                || o.ends_with('/')
+                || o.chars().any(|c| c.is_whitespace())
+            {
+                return Err(ConfigError::Invalid(format!(
+                    "cors_origins: {o:?} is not an origin like https://dash.example.com"
+                )));
+            }
+        }
+
         if self.max_image_pixels > caliper_core::io::MAX_IMAGE_PIXELS {
             return Err(ConfigError::Invalid(format!(
                 "max_image_pixels is at most {} (the largest image any job accepts)",
@@ -257,6 +304,21 @@ impl Config {
             )));
         }
         Ok(())
+    }
+
+    /// Whether requests need a bearer token: asked for, or listening beyond loopback without
+    /// `insecure_no_auth`.
+    pub fn auth_required(&self) -> bool {
+        self.auth || (!self.listen.ip().is_loopback() && !self.insecure_no_auth)
+    }
+
+    /// The CORS origins, split.
+    pub fn cors_list(&self) -> Vec<&str> {
+        self.cors_origins
+            .split(',')
+            .map(str::trim)
+            .filter(|o| !o.is_empty())
+            .collect()
     }
 
     /// Run-time limit for a job kind.

@@ -6,6 +6,7 @@
 //! [`ingest`] (upload validation), [`server`] (start/stop), [`offline`] (`caliper run`).
 
 pub mod api;
+pub mod auth;
 pub mod blob_gc;
 pub mod blobs;
 pub mod clock;
@@ -22,6 +23,7 @@ pub mod offline;
 pub mod server;
 pub mod state;
 pub mod store;
+pub mod token_cli;
 
 pub use api::{app, openapi};
 pub use config::Config;

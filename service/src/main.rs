@@ -30,6 +30,8 @@ enum Command {
     },
     /// Print the OpenAPI document.
     Openapi,
+    /// Manage access tokens in the store (no running server needed).
+    Token(caliper_service::token_cli::TokenArgs),
     /// Run a job kind on local files and print its document (one subcommand per job kind).
     Run,
 }
@@ -55,6 +57,7 @@ fn main() -> ExitCode {
     match cli.command {
         Command::Openapi => emit(&caliper_service::openapi_json()),
         Command::Run => ExitCode::from(2),
+        Command::Token(args) => token(args),
         Command::Serve {
             config,
             shutdown_grace_secs,
@@ -72,6 +75,26 @@ fn emit(text: &str) -> ExitCode {
         Err(e) => {
             eprintln!("caliper: cannot write output: {e}");
             ExitCode::FAILURE
+        }
+    }
+}
+
+fn token(args: caliper_service::token_cli::TokenArgs) -> ExitCode {
+    let rt = match tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("caliper: cannot start runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match rt.block_on(caliper_service::token_cli::run(args)) {
+        Ok(text) => emit(&text),
+        Err(e) => {
+            eprintln!("caliper: {e}");
+            ExitCode::from(2)
         }
     }
 }
@@ -101,6 +124,19 @@ fn serve(args: ConfigArgs, grace: Duration) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
+    if config.auth_required() {
+        eprintln!(
+            "caliper: bearer tokens required on every route but /healthz, /readyz, /openapi.json, /docs and /ui \
+             (make one with `caliper token create --scope admin --name me --data-dir {}`)",
+            config.data_dir.display()
+        );
+    } else {
+        eprintln!(
+            "caliper: running OPEN, without tokens: anyone who reaches {} can use the API \
+             (pass --auth to require tokens; they are required by themselves beyond loopback)",
+            config.listen
+        );
+    }
     let code = rt.block_on(async move {
         let server = match caliper_service::server::start(config).await {
             Ok(s) => s,

@@ -38,6 +38,7 @@ struct Inner {
     cancel_flags: Mutex<HashMap<Uuid, Arc<AtomicBool>>>,
     finished_jobs: RwLock<HashMap<Uuid, Bytes>>,
     watchers: crate::job_watch::Watchers,
+    rate_limiter: crate::auth::RateLimiter,
 }
 
 /// Cheap-to-clone handle on everything a handler or worker needs.
@@ -65,6 +66,7 @@ impl AppState {
                 cancel_flags: Mutex::new(HashMap::new()),
                 finished_jobs: RwLock::new(HashMap::new()),
                 watchers: Default::default(),
+                rate_limiter: Default::default(),
             }),
         }
     }
@@ -72,6 +74,11 @@ impl AppState {
     /// Shared watchers of followed jobs (see [`crate::job_watch`]).
     pub fn watchers(&self) -> &crate::job_watch::Watchers {
         &self.inner.watchers
+    }
+
+    /// Per-token request budgets (see [`crate::auth`]).
+    pub fn rate_limiter(&self) -> &crate::auth::RateLimiter {
+        &self.inner.rate_limiter
     }
 
     pub fn config(&self) -> &Config {

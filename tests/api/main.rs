@@ -3,6 +3,7 @@
 //! One test binary (link time), one module per area. Inputs are rendered in-test; nothing
 //! here needs files outside the repository.
 
+mod auth;
 mod browser;
 mod camera;
 mod common;

@@ -11,6 +11,7 @@ use uuid::Uuid;
 
 use super::extract::{ApiPath, ApiQuery};
 use super::views::{DatasetPage, DatasetView};
+use crate::auth::Principal;
 use crate::error::{ApiError, ApiResult, Problem};
 use crate::state::AppState;
 use crate::store::DeleteDataset;
@@ -54,6 +55,7 @@ pub struct UploadForm {
 )]
 pub async fn upload_dataset(
     State(state): State<AppState>,
+    who: Principal,
     headers: HeaderMap,
     request: axum::extract::Request,
 ) -> ApiResult<impl IntoResponse> {
@@ -71,7 +73,7 @@ pub async fn upload_dataset(
         <Multipart as axum::extract::FromRequest<AppState>>::from_request(request, &state)
             .await
             .map_err(|e| ApiError::new("invalid_body", e.body_text()))?;
-    let ds = crate::ingest::ingest(&state, multipart).await?;
+    let ds = crate::ingest::ingest(&state, multipart, who.devices.clone()).await?;
     metrics::counter!("caliper_datasets_uploaded_total", "kind" => ds.kind.as_str()).increment(1);
     let location = format!("/v1/datasets/{}", ds.id);
     Ok((
@@ -103,10 +105,14 @@ pub struct PageQuery {
 )]
 pub async fn list_datasets(
     State(state): State<AppState>,
+    who: Principal,
     ApiQuery(q): ApiQuery<PageQuery>,
 ) -> ApiResult<axum::Json<DatasetPage>> {
     let limit = super::page_limit(q.limit)?;
-    let rows = state.store().list_datasets(q.cursor, limit + 1).await?;
+    let rows = state
+        .store()
+        .list_datasets(q.cursor, limit + 1, who.only())
+        .await?;
     let (items, next_cursor) = super::paginate(rows, limit, |d| d.id);
     Ok(axum::Json(DatasetPage {
         items: items.into_iter().map(DatasetView::from).collect(),
@@ -125,13 +131,10 @@ pub async fn list_datasets(
 )]
 pub async fn get_dataset(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath(id): ApiPath<Uuid>,
 ) -> ApiResult<axum::Json<DatasetView>> {
-    let ds = state
-        .store()
-        .get_dataset(id)
-        .await?
-        .ok_or_else(|| ApiError::not_found(format!("dataset {id}")))?;
+    let ds = visible_dataset(&state, &who, id).await?;
     Ok(axum::Json(ds.into()))
 }
 
@@ -150,14 +153,11 @@ pub async fn get_dataset(
 )]
 pub async fn get_dataset_file(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath((id, index)): ApiPath<(Uuid, u32)>,
 ) -> ApiResult<axum::response::Response> {
     use axum::http::HeaderValue;
-    let ds = state
-        .store()
-        .get_dataset(id)
-        .await?
-        .ok_or_else(|| ApiError::not_found(format!("dataset {id}")))?;
+    let ds = visible_dataset(&state, &who, id).await?;
     let f = ds
         .files
         .get(index as usize)
@@ -196,8 +196,10 @@ pub async fn get_dataset_file(
 )]
 pub async fn delete_dataset(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath(id): ApiPath<Uuid>,
 ) -> ApiResult<StatusCode> {
+    visible_dataset(&state, &who, id).await?;
     match state.store().delete_dataset(id).await? {
         DeleteDataset::NotFound => Err(ApiError::not_found(format!("dataset {id}"))),
         DeleteDataset::InUse(jobs) => Err(ApiError::new(
@@ -218,4 +220,18 @@ pub async fn delete_dataset(
             Ok(StatusCode::NO_CONTENT)
         }
     }
+}
+
+/// The dataset, if it exists and the caller may see it; 404 alike otherwise.
+pub async fn visible_dataset(
+    state: &AppState,
+    who: &Principal,
+    id: Uuid,
+) -> ApiResult<crate::store::DatasetRecord> {
+    state
+        .store()
+        .get_dataset(id)
+        .await?
+        .filter(|d| who.sees_dataset(d.devices.as_deref()))
+        .ok_or_else(|| ApiError::not_found(format!("dataset {id}")))
 }

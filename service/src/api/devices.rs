@@ -9,6 +9,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::extract::ApiQuery;
+use crate::auth::Principal;
 use crate::error::{ApiError, ApiResult, Problem};
 use crate::state::AppState;
 use crate::store::{DeviceQuery, DeviceSummary};
@@ -58,6 +59,7 @@ pub struct DevicePage {
 )]
 pub async fn list_devices(
     State(state): State<AppState>,
+    who: Principal,
     ApiQuery(q): ApiQuery<DeviceListQuery>,
 ) -> ApiResult<axum::Json<DevicePage>> {
     let limit = super::page_limit(q.limit)?;
@@ -87,9 +89,10 @@ pub async fn list_devices(
             search: search.clone(),
             after: q.cursor.clone(),
             limit: limit + 1,
+            only: who.devices.clone(),
         })
         .await?;
-    let total = store.count_devices(search.as_deref()).await?;
+    let total = store.count_devices(search.as_deref(), who.only()).await?;
     let (items, next_cursor) = cut_page(rows, limit);
     Ok(axum::Json(DevicePage {
         items,

@@ -9,6 +9,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::extract::{ApiPath, ApiQuery};
+use crate::auth::Principal;
 use crate::clock::rfc3339;
 use crate::error::{ApiError, ApiResult, Problem};
 use crate::state::AppState;
@@ -151,9 +152,13 @@ pub fn json_with_etag(body: String, etag: &str, headers: &HeaderMap) -> Response
 )]
 pub async fn list_device_documents(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath(serial): ApiPath<String>,
 ) -> ApiResult<axum::Json<DeviceDocuments>> {
-    let documents = state.store().list_documents(&serial).await?;
+    let mut documents = state.store().list_documents(&serial).await?;
+    if !who.sees_device(&serial) {
+        documents.clear();
+    }
     Ok(axum::Json(DeviceDocuments {
         device: serial,
         documents,
@@ -173,13 +178,14 @@ pub async fn list_device_documents(
 )]
 pub async fn list_revisions(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath((serial, sensor, kind)): ApiPath<(String, String, String)>,
 ) -> ApiResult<axum::Json<Vec<RevisionView>>> {
     let revs = state
         .store()
         .list_revisions(&serial, &sensor, &kind)
         .await?;
-    if revs.is_empty() {
+    if revs.is_empty() || !who.sees_device(&serial) {
         return Err(ApiError::not_found(format!(
             "document {kind} of {serial}/{sensor}"
         )));
@@ -229,6 +235,7 @@ pub async fn list_revisions(
 )]
 pub async fn latest_document(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath((serial, sensor, kind)): ApiPath<(String, String, String)>,
     ApiQuery(q): ApiQuery<FormatQuery>,
     headers: HeaderMap,
@@ -237,6 +244,7 @@ pub async fn latest_document(
         .store()
         .get_document(&serial, &sensor, &kind, None)
         .await?
+        .filter(|_| who.sees_device(&serial))
         .ok_or_else(|| ApiError::not_found(format!("document {kind} of {serial}/{sensor}")))?;
     document_response(d.body, &d.etag, q.format.as_deref(), &headers)
 }
@@ -259,6 +267,7 @@ pub async fn latest_document(
 )]
 pub async fn document_revision(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath((serial, sensor, kind, rev)): ApiPath<(String, String, String, u64)>,
     ApiQuery(q): ApiQuery<FormatQuery>,
     headers: HeaderMap,
@@ -267,6 +276,7 @@ pub async fn document_revision(
         .store()
         .get_document(&serial, &sensor, &kind, Some(rev))
         .await?
+        .filter(|_| who.sees_device(&serial))
         .ok_or_else(|| {
             ApiError::not_found(format!(
                 "revision {rev} of document {kind} of {serial}/{sensor}"
@@ -291,6 +301,7 @@ pub async fn document_revision(
 )]
 pub async fn diff_revisions(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath((serial, sensor, kind)): ApiPath<(String, String, String)>,
     ApiQuery(q): ApiQuery<DiffQuery>,
 ) -> ApiResult<axum::Json<RevisionDiff>> {
@@ -308,6 +319,7 @@ pub async fn diff_revisions(
             .store()
             .get_document(&serial, &sensor, &kind, Some(rev))
             .await?
+            .filter(|_| who.sees_device(&serial))
             .ok_or_else(|| {
                 ApiError::not_found(format!(
                     "revision {rev} of document {kind} of {serial}/{sensor}"

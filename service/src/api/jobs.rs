@@ -20,6 +20,7 @@ use uuid::Uuid;
 
 use super::extract::{ApiJson, ApiPath, ApiQuery};
 use super::views::{ArtifactList, ArtifactView, JobKindView, JobPage, JobView};
+use crate::auth::Principal;
 use crate::error::{ApiError, ApiResult, Problem};
 use crate::jobs::{kinds, resolve_kind};
 use crate::state::AppState;
@@ -97,10 +98,13 @@ pub(crate) fn valid_name(s: &str) -> bool {
 )]
 pub async fn create_job(
     State(state): State<AppState>,
+    who: Principal,
     headers: HeaderMap,
     ApiJson(req): ApiJson<CreateJobRequest>,
 ) -> ApiResult<Response> {
-    let key = idempotency_key(&headers)?;
+    // Keys are per token: one client's key can neither collide with nor reveal another's job.
+    let key = idempotency_key(&headers)?
+        .map(|k| who.token.map_or(k.clone(), |t| format!("{t}:{k}")));
     let kind = resolve_kind(state.config(), &req.kind).ok_or_else(|| {
         let known: Vec<&str> = kinds().iter().map(|k| k.name()).collect();
         ApiError::new(
@@ -114,11 +118,19 @@ pub async fn create_job(
         .with_field("kind")
     })?;
     check_request(&req)?;
+    if who.devices.is_some() && !req.device.as_deref().is_some_and(|d| who.sees_device(d)) {
+        return Err(ApiError::new(
+            "forbidden",
+            "this token may queue jobs only for its own devices: set `device` to one of them",
+        )
+        .with_field("device"));
+    }
     let params = kind.normalize_params(&req.params).map_err(ApiError::from)?;
     let dataset = state
         .store()
         .get_dataset(req.dataset)
         .await?
+        .filter(|d| who.sees_dataset(d.devices.as_deref()))
         .ok_or_else(|| {
             ApiError::new(
                 "unknown_dataset",
@@ -301,6 +313,7 @@ pub struct JobQuery {
 )]
 pub async fn list_jobs(
     State(state): State<AppState>,
+    who: Principal,
     ApiQuery(q): ApiQuery<JobQuery>,
 ) -> ApiResult<axum::Json<JobPage>> {
     let limit = super::page_limit(q.limit)?;
@@ -347,6 +360,7 @@ pub async fn list_jobs(
         statuses,
         kinds: split(&q.kind),
         device: q.device.clone(),
+        devices: who.devices.clone(),
         dataset: q.dataset,
         created_after: time(&q.created_after, "created_after")?,
         created_before: time(&q.created_before, "created_before")?,
@@ -361,12 +375,17 @@ pub async fn list_jobs(
     }))
 }
 
-/// Read a job or answer 404.
-async fn load_job(state: &AppState, id: Uuid) -> ApiResult<crate::store::JobRecord> {
+/// Read a job the caller may see, or answer 404.
+async fn load_job(
+    state: &AppState,
+    who: &Principal,
+    id: Uuid,
+) -> ApiResult<crate::store::JobRecord> {
     state
         .store()
         .get_job(id)
         .await?
+        .filter(|j| who.sees_job(j.device.as_deref()))
         .ok_or_else(|| ApiError::not_found(format!("job {id}")))
 }
 
@@ -381,12 +400,15 @@ async fn load_job(state: &AppState, id: Uuid) -> ApiResult<crate::store::JobReco
 )]
 pub async fn get_job(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath(id): ApiPath<Uuid>,
 ) -> ApiResult<Response> {
-    let body = match state.cached_job(&id) {
+    // The cache holds bodies, not owners: device-scoped callers always read the store.
+    let cached = who.devices.is_none().then(|| state.cached_job(&id)).flatten();
+    let body = match cached {
         Some(body) => body,
         None => {
-            let job = load_job(&state, id).await?;
+            let job = load_job(&state, &who, id).await?;
             let body = bytes::Bytes::from(
                 serde_json::to_vec(&JobView::from(&job)).map_err(ApiError::internal)?,
             );
@@ -422,8 +444,10 @@ pub async fn get_job(
 )]
 pub async fn cancel_job(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath(id): ApiPath<Uuid>,
 ) -> ApiResult<Response> {
+    load_job(&state, &who, id).await?;
     match state.store().cancel_job(id, crate::clock::now_ms()).await? {
         CancelJob::NotFound => Err(ApiError::not_found(format!("job {id}"))),
         CancelJob::Canceled(job) => {
@@ -461,11 +485,12 @@ pub async fn cancel_job(
 )]
 pub async fn job_events(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath(id): ApiPath<Uuid>,
 ) -> ApiResult<Sse<impl Stream<Item = Result<Event, Infallible>>>> {
     // Subscribe before reading the current state so no change falls between the two.
     let bus = state.subscribe();
-    let job = load_job(&state, id).await?;
+    let job = load_job(&state, &who, id).await?;
     let rx = crate::job_watch::follow(&state, &job, bus);
     // The stream owns only a receiver: when the client goes, the stream is dropped, and the
     // shared watcher notices its last receiver is gone. Keep-alives (below) make a vanished
@@ -509,11 +534,12 @@ pub async fn job_events(
 )]
 pub async fn job_result(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath(id): ApiPath<Uuid>,
     ApiQuery(q): ApiQuery<super::documents::FormatQuery>,
     headers: HeaderMap,
 ) -> ApiResult<Response> {
-    let job = load_job(&state, id).await?;
+    let job = load_job(&state, &who, id).await?;
     let result = match job.status {
         JobStatus::Succeeded => state.store().get_job_result(id).await?,
         _ => None,
@@ -545,9 +571,10 @@ pub async fn job_result(
 )]
 pub async fn list_artifacts(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath(id): ApiPath<Uuid>,
 ) -> ApiResult<axum::Json<ArtifactList>> {
-    load_job(&state, id).await?;
+    load_job(&state, &who, id).await?;
     let items = state
         .store()
         .list_artifacts(id)
@@ -572,8 +599,10 @@ pub async fn list_artifacts(
 )]
 pub async fn get_artifact(
     State(state): State<AppState>,
+    who: Principal,
     ApiPath((id, name)): ApiPath<(Uuid, String)>,
 ) -> ApiResult<Response> {
+    load_job(&state, &who, id).await?;
     let a = state
         .store()
         .get_artifact(id, &name)

@@ -8,6 +8,7 @@ pub mod documents;
 pub mod extract;
 pub mod health;
 pub mod jobs;
+pub mod tokens;
 pub mod ui;
 pub mod views;
 
@@ -37,10 +38,11 @@ use crate::state::AppState;
         (name = "datasets", description = "Uploaded recordings"),
         (name = "jobs", description = "Queued work and its results"),
         (name = "documents", description = "Versioned calibration documents per device"),
+        (name = "tokens", description = "Access tokens (admin scope)"),
         (name = "operations", description = "Health, metrics, problem types"),
     ),
     components(schemas(Problem)),
-    modifiers(&ProblemCodes)
+    modifiers(&ProblemCodes, &BearerAuth)
 )]
 struct ApiDoc;
 
@@ -72,6 +74,33 @@ fn add_kind_schemas(api: &mut utoipa::openapi::OpenApi) {
             "Kind-specific parameters; omitted fields take their defaults. Schemas: {}.",
             names.join(", ")
         ));
+    }
+}
+
+/// Declares the bearer scheme and applies it to every operation: servers with tokens on
+/// (production, or `--auth`) require it everywhere but health, the spec and the dashboard.
+struct BearerAuth;
+
+impl utoipa::Modify for BearerAuth {
+    fn modify(&self, api: &mut utoipa::openapi::OpenApi) {
+        use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityRequirement, SecurityScheme};
+        let components = api.components.get_or_insert_with(Default::default);
+        components.add_security_scheme(
+            "bearer",
+            SecurityScheme::Http(
+                HttpBuilder::new()
+                    .scheme(HttpAuthScheme::Bearer)
+                    .description(Some(
+                        "`clp_…` token from `caliper token create` or `POST /v1/tokens`; required when the server runs with tokens",
+                    ))
+                    .build(),
+            ),
+        );
+        // Optional at the spec level: an embedded server on loopback runs open.
+        api.security = Some(vec![
+            SecurityRequirement::new("bearer", Vec::<String>::new()),
+            SecurityRequirement::default(),
+        ]);
     }
 }
 
@@ -123,6 +152,14 @@ fn routes(max_upload: usize) -> OpenApiRouter<AppState> {
         )
         .merge(devices::router())
         .merge(documents::router())
+        .merge(
+            tokens::router()
+                .layer(DefaultBodyLimit::max(JSON_BODY_LIMIT))
+                .layer(axum::middleware::from_fn_with_state(
+                    JSON_BODY_LIMIT,
+                    refuse_declared_oversize,
+                )),
+        )
         .merge(health::router())
 }
 
@@ -139,10 +176,15 @@ pub fn app(state: AppState) -> Router {
     let (router, mut api) = routes(max_upload).split_for_parts();
     add_kind_schemas(&mut api);
     let body_timeout = std::time::Duration::from_secs(state.config().body_timeout_secs);
+    let cors = cors_layer(state.config());
     router
         .merge(SwaggerUi::new("/docs").url("/openapi.json", api))
         .merge(ui::router())
         .fallback(fallback)
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            crate::auth::authenticate,
+        ))
         // A body that stalls (a trickled upload, a declared length never sent) is dropped
         // after `body_timeout_secs` without data, releasing its temporary file.
         .layer(tower_http::timeout::RequestBodyTimeoutLayer::new(
@@ -151,7 +193,33 @@ pub fn app(state: AppState) -> Router {
         .layer(axum::middleware::from_fn(problem_and_metrics))
         .layer(tower_http::catch_panic::CatchPanicLayer::custom(on_panic))
         .layer(tower_http::trace::TraceLayer::new_for_http())
+        .layer(cors)
         .with_state(state)
+}
+
+/// CORS for the configured browser origins (none by default: the built-in dashboard is
+/// same-origin). Preflights are answered here, before authentication.
+fn cors_layer(cfg: &crate::config::Config) -> tower_http::cors::CorsLayer {
+    use tower_http::cors::{AllowOrigin, CorsLayer};
+    let origins: Vec<HeaderValue> = cfg
+        .cors_list()
+        .into_iter()
+        .filter_map(|o| HeaderValue::from_str(o).ok())
+        .collect();
+    if origins.is_empty() {
+        return CorsLayer::new();
+    }
+    CorsLayer::new()
+        .allow_origin(AllowOrigin::list(origins))
+        .allow_methods([Method::GET, Method::POST, Method::DELETE])
+        .allow_headers([
+            header::AUTHORIZATION,
+            header::CONTENT_TYPE,
+            header::IF_NONE_MATCH,
+            axum::http::HeaderName::from_static("idempotency-key"),
+        ])
+        .expose_headers([header::ETAG, header::LOCATION, header::RETRY_AFTER])
+        .max_age(std::time::Duration::from_secs(600))
 }
 
 /// Answer 413 at once when the declared `Content-Length` is over the route's limit, instead

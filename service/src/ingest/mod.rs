@@ -48,7 +48,11 @@ fn tmp_dir(state: &AppState) -> PathBuf {
 }
 
 /// Receive, validate and store an upload; returns the new dataset.
-pub async fn ingest(state: &AppState, mut multipart: Multipart) -> ApiResult<DatasetRecord> {
+pub async fn ingest(
+    state: &AppState,
+    mut multipart: Multipart,
+    devices: Option<Vec<String>>,
+) -> ApiResult<DatasetRecord> {
     let cfg = state.config().clone();
     let tmp = tmp_dir(state);
     tokio::fs::create_dir_all(&tmp)
@@ -144,6 +148,7 @@ pub async fn ingest(state: &AppState, mut multipart: Multipart) -> ApiResult<Dat
                 total_bytes,
                 sha256: crate::document::manifest_sha256(&stored),
                 files: stored,
+                devices,
             };
             state
                 .store()

@@ -96,6 +96,9 @@ pub struct DatasetRecord {
     /// SHA-256 over the sorted `name:sha256` lines: identifies the content of the set.
     pub sha256: String,
     pub files: Vec<DatasetFile>,
+    /// The devices of the device-scoped token that uploaded it (only such tokens of those
+    /// devices see it); `None` for an upload with fleet-wide access.
+    pub devices: Option<Vec<String>>,
 }
 
 /// Job lifecycle states.
@@ -197,6 +200,8 @@ pub struct JobFilter {
     pub statuses: Vec<JobStatus>,
     pub kinds: Vec<String>,
     pub device: Option<String>,
+    /// Only jobs of these devices (a device-scoped token); `None`: all.
+    pub devices: Option<Vec<String>>,
     pub dataset: Option<Uuid>,
     pub created_after: Option<i64>,
     pub created_before: Option<i64>,
@@ -288,6 +293,8 @@ pub struct DeviceQuery {
     /// Only serials after this one (the cursor).
     pub after: Option<String>,
     pub limit: u32,
+    /// Only these serials (a device-scoped token); `None`: all.
+    pub only: Option<Vec<String>>,
 }
 
 /// An artifact produced by a job (plot, image), stored as a content-addressed blob.
@@ -351,10 +358,12 @@ pub struct Sealed {
 pub trait DatasetStore: Send + Sync {
     async fn insert_dataset(&self, ds: &DatasetRecord) -> StoreResult<()>;
     async fn get_dataset(&self, id: Uuid) -> StoreResult<Option<DatasetRecord>>;
+    /// Newest first; with `only`, just the datasets uploaded for one of those devices.
     async fn list_datasets(
         &self,
         before_id: Option<Uuid>,
         limit: u32,
+        only: Option<&[String]>,
     ) -> StoreResult<Vec<DatasetRecord>>;
     /// Delete a dataset no queued or running job uses; its blobs become GC candidates.
     async fn delete_dataset(&self, id: Uuid) -> StoreResult<DeleteDataset>;
@@ -420,7 +429,11 @@ pub trait DocumentStore: Send + Sync {
     /// to learn whether a next page exists), with their latest documents.
     async fn list_devices(&self, q: &DeviceQuery) -> StoreResult<Vec<DeviceSummary>>;
     /// How many devices match `search` (all devices when `None`).
-    async fn count_devices(&self, search: Option<&str>) -> StoreResult<u64>;
+    async fn count_devices(
+        &self,
+        search: Option<&str>,
+        only: Option<&[String]>,
+    ) -> StoreResult<u64>;
     async fn get_document(
         &self,
         device: &str,
@@ -459,11 +472,67 @@ pub trait BlobRefs: Send + Sync {
     async fn clear_pins(&self, now: i64) -> StoreResult<()>;
 }
 
+/// What a token may do. `admin` manages tokens (and may do everything else), `write` uploads,
+/// queues and cancels (and reads), `read` reads datasets, jobs and documents.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Scope {
+    Read,
+    Write,
+    Admin,
+}
+
+impl Scope {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Read => "read",
+            Self::Write => "write",
+            Self::Admin => "admin",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "read" => Some(Self::Read),
+            "write" => Some(Self::Write),
+            "admin" => Some(Self::Admin),
+            _ => None,
+        }
+    }
+}
+
+/// A stored access token (its secret is kept only as a hash).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TokenRecord {
+    pub id: Uuid,
+    pub name: String,
+    /// The first characters of the secret, shown in lists so a leaked token can be matched.
+    pub prefix: String,
+    pub scope: Scope,
+    /// Device serials it is limited to; `None`: the whole fleet.
+    pub devices: Option<Vec<String>>,
+    pub created_at: i64,
+    pub revoked_at: Option<i64>,
+}
+
+/// Access tokens.
+#[async_trait]
+pub trait TokenStore: Send + Sync {
+    /// Store a new token under the SHA-256 `hash` of its secret.
+    async fn insert_token(&self, token: &TokenRecord, hash: &str) -> StoreResult<()>;
+    /// The token whose secret hashes to `hash`, revoked or not.
+    async fn token_by_hash(&self, hash: &str) -> StoreResult<Option<TokenRecord>>;
+    /// Every token, newest first.
+    async fn list_tokens(&self) -> StoreResult<Vec<TokenRecord>>;
+    /// Revoke a token; false if there is no such token.
+    async fn revoke_token(&self, id: Uuid, now: i64) -> StoreResult<bool>;
+}
+
 /// The whole storage interface used by handlers and workers: one trait per concern, so a
 /// second implementation (PostgreSQL) plugs in concern by concern.
 #[async_trait]
 pub trait Store:
-    DatasetStore + JobQueue + DocumentStore + BlobRefs + Send + Sync + 'static
+    DatasetStore + JobQueue + DocumentStore + BlobRefs + TokenStore + Send + Sync + 'static
 {
     /// Can we reach the database?
     async fn ping(&self) -> StoreResult<()>;

@@ -27,6 +27,7 @@ async fn dataset(s: &SqliteStore) -> Uuid {
             media_type: "image/png".into(),
             image: None,
         }],
+        devices: None,
     })
     .await
     .unwrap();
@@ -370,4 +371,53 @@ async fn gc_deletes_only_unreferenced_unpinned_blobs() {
         s.delete_dataset(b).await.unwrap(),
         DeleteDataset::NotFound
     ));
+}
+
+#[tokio::test]
+async fn tokens_are_found_by_hash_listed_and_revoked() {
+    let (s, _d) = store().await;
+    let new = crate::auth::generate("ci", Scope::Write, Some(vec!["cam-1".into()]), 5)
+        .expect("token");
+    s.insert_token(&new.record, &new.hash).await.unwrap();
+    let found = s.token_by_hash(&new.hash).await.unwrap().expect("found");
+    assert_eq!(found, new.record);
+    assert!(s.token_by_hash("nope").await.unwrap().is_none());
+    assert_eq!(s.list_tokens().await.unwrap().len(), 1);
+    assert!(s.revoke_token(new.record.id, 9).await.unwrap());
+    assert_eq!(
+        s.token_by_hash(&new.hash).await.unwrap().expect("still there").revoked_at,
+        Some(9)
+    );
+    // Revoking twice keeps the first time.
+    assert!(s.revoke_token(new.record.id, 12).await.unwrap());
+    assert_eq!(s.list_tokens().await.unwrap()[0].revoked_at, Some(9));
+    assert!(!s.revoke_token(Uuid::now_v7(), 12).await.unwrap());
+}
+
+#[tokio::test]
+async fn datasets_of_device_tokens_are_listed_only_for_their_devices() {
+    let (s, _d) = store().await;
+    let fleet = dataset(&s).await;
+    let mine = Uuid::now_v7();
+    s.insert_dataset(&DatasetRecord {
+        id: mine,
+        kind: DatasetKind::Images,
+        created_at: 0,
+        total_bytes: 1,
+        sha256: "y".into(),
+        files: vec![],
+        devices: Some(vec!["cam-1".into(), "cam-2".into()]),
+    })
+    .await
+    .unwrap();
+    let ids = |v: Vec<DatasetRecord>| v.into_iter().map(|d| d.id).collect::<Vec<_>>();
+    assert_eq!(ids(s.list_datasets(None, 10, None).await.unwrap()), [mine, fleet]);
+    let only = ["cam-2".to_string()];
+    assert_eq!(ids(s.list_datasets(None, 10, Some(&only)).await.unwrap()), [mine]);
+    let other = ["cam-9".to_string()];
+    assert!(s.list_datasets(None, 10, Some(&other)).await.unwrap().is_empty());
+    assert_eq!(
+        s.get_dataset(mine).await.unwrap().expect("there").devices,
+        Some(vec!["cam-1".to_string(), "cam-2".to_string()])
+    );
 }

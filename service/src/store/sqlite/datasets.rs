@@ -35,6 +35,7 @@ impl SqliteStore {
 
     fn dataset_from_row(r: &SqliteRow, files: Vec<DatasetFile>) -> StoreResult<DatasetRecord> {
         let kind: String = r.try_get("kind")?;
+        let devices: Option<String> = r.try_get("devices")?;
         Ok(DatasetRecord {
             id: parse_uuid(&r.try_get::<String, _>("id")?)?,
             kind: DatasetKind::parse(&kind)
@@ -43,6 +44,10 @@ impl SqliteStore {
             total_bytes: r.try_get::<i64, _>("total_bytes")? as u64,
             sha256: r.try_get("sha256")?,
             files,
+            devices: devices
+                .map(|d| serde_json::from_str(&d))
+                .transpose()
+                .map_err(|e| StoreError::Corrupt(e.to_string()))?,
         })
     }
 }
@@ -52,7 +57,7 @@ impl DatasetStore for SqliteStore {
     async fn insert_dataset(&self, ds: &DatasetRecord) -> StoreResult<()> {
         let mut tx = self.write.begin().await?;
         sqlx::query(
-            "INSERT INTO datasets (id, kind, created_at, total_bytes, sha256, file_count) VALUES (?, ?, ?, ?, ?, ?)",
+            "INSERT INTO datasets (id, kind, created_at, total_bytes, sha256, file_count, devices) VALUES (?, ?, ?, ?, ?, ?, ?)",
         )
         .bind(ds.id.to_string())
         .bind(ds.kind.as_str())
@@ -60,6 +65,13 @@ impl DatasetStore for SqliteStore {
         .bind(ds.total_bytes as i64)
         .bind(&ds.sha256)
         .bind(ds.files.len() as i64)
+        .bind(
+            ds.devices
+                .as_ref()
+                .map(serde_json::to_string)
+                .transpose()
+                .map_err(|e| StoreError::Corrupt(e.to_string()))?,
+        )
         .execute(&mut *tx)
         .await?;
         for (i, f) in ds.files.iter().enumerate() {
@@ -104,12 +116,19 @@ impl DatasetStore for SqliteStore {
         &self,
         before_id: Option<Uuid>,
         limit: u32,
+        only: Option<&[String]>,
     ) -> StoreResult<Vec<DatasetRecord>> {
+        let only = only
+            .map(serde_json::to_string)
+            .transpose()
+            .map_err(|e| StoreError::Corrupt(e.to_string()))?;
         let rows = sqlx::query(
-            "SELECT * FROM datasets WHERE (? IS NULL OR id < ?) ORDER BY id DESC LIMIT ?",
+            "SELECT * FROM datasets WHERE (?1 IS NULL OR id < ?1) AND (?2 IS NULL OR EXISTS \
+             (SELECT 1 FROM json_each(datasets.devices) d WHERE d.value IN (SELECT value FROM json_each(?2)))) \
+             ORDER BY id DESC LIMIT ?3",
         )
         .bind(before_id.map(|u| u.to_string()))
-        .bind(before_id.map(|u| u.to_string()))
+        .bind(only)
         .bind(limit as i64)
         .fetch_all(&self.read)
         .await?;

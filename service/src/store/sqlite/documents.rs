@@ -32,6 +32,13 @@ const SUMMARY_COLUMNS: &str = "d.sensor AS sensor, d.kind AS kind, d.schema AS s
 const IS_LATEST: &str = "d.rev = (SELECT MAX(x.rev) FROM documents x WHERE x.device = d.device \
      AND x.sensor = d.sensor AND x.kind = d.kind)";
 
+/// A list of serials as a JSON array for `json_each` (SQLite has no array binds).
+fn json_list(only: Option<&[String]>) -> StoreResult<Option<String>> {
+    only.map(serde_json::to_string)
+        .transpose()
+        .map_err(|e| StoreError::Corrupt(e.to_string()))
+}
+
 fn summary_from_row(r: &SqliteRow) -> StoreResult<DocumentSummary> {
     let job: Option<String> = r.try_get("job_id")?;
     let quality: Option<String> = r.try_get("quality")?;
@@ -68,6 +75,7 @@ impl DocumentStore for SqliteStore {
         let rows = sqlx::query(&format!(
             "WITH page AS (SELECT DISTINCT device FROM documents \
                WHERE (?1 IS NULL OR device > ?1) AND (?2 IS NULL OR instr(lower(device), lower(?2)) > 0) \
+               AND (?4 IS NULL OR device IN (SELECT value FROM json_each(?4))) \
                ORDER BY device LIMIT ?3) \
              SELECT d.device AS device, {SUMMARY_COLUMNS} FROM documents d JOIN page p ON d.device = p.device \
              WHERE {IS_LATEST} ORDER BY d.device, d.sensor, d.kind"
@@ -75,6 +83,7 @@ impl DocumentStore for SqliteStore {
         .bind(q.after.as_deref())
         .bind(q.search.as_deref())
         .bind(i64::from(q.limit))
+        .bind(json_list(q.only.as_deref())?)
         .fetch_all(&self.read)
         .await?;
         let mut out: Vec<DeviceSummary> = Vec::new();
@@ -92,12 +101,18 @@ impl DocumentStore for SqliteStore {
         Ok(out)
     }
 
-    async fn count_devices(&self, search: Option<&str>) -> StoreResult<u64> {
+    async fn count_devices(
+        &self,
+        search: Option<&str>,
+        only: Option<&[String]>,
+    ) -> StoreResult<u64> {
         let n: i64 = sqlx::query_scalar(
             "SELECT COUNT(DISTINCT device) FROM documents \
-             WHERE (?1 IS NULL OR instr(lower(device), lower(?1)) > 0)",
+             WHERE (?1 IS NULL OR instr(lower(device), lower(?1)) > 0) \
+             AND (?2 IS NULL OR device IN (SELECT value FROM json_each(?2)))",
         )
         .bind(search)
+        .bind(json_list(only)?)
         .fetch_one(&self.read)
         .await?;
         Ok(n.max(0) as u64)

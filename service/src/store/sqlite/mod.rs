@@ -11,6 +11,7 @@ mod blobs;
 mod datasets;
 mod documents;
 mod queue;
+mod tokens;
 
 use std::path::Path;
 use std::str::FromStr;
@@ -47,6 +48,7 @@ fn migrator() -> Migrator {
             "blob lifetime",
             include_str!("migrations/0002_blob_lifetime.sql"),
         ),
+        m(3, "tokens", include_str!("migrations/0003_tokens.sql")),
     ])
 }
 

@@ -148,6 +148,9 @@ impl JobQueue for SqliteStore {
         if f.device.is_some() {
             q.push_str(" AND device = ?");
         }
+        if f.devices.is_some() {
+            q.push_str(" AND device IN (SELECT value FROM json_each(?))");
+        }
         if f.dataset.is_some() {
             q.push_str(" AND dataset_id = ?");
         }
@@ -170,6 +173,10 @@ impl JobQueue for SqliteStore {
         }
         if let Some(d) = &f.device {
             query = query.bind(d.clone());
+        }
+        if let Some(d) = &f.devices {
+            query = query
+                .bind(serde_json::to_string(d).map_err(|e| StoreError::Corrupt(e.to_string()))?);
         }
         if let Some(d) = f.dataset {
             query = query.bind(d.to_string());
