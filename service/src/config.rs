@@ -177,6 +177,14 @@ settings! {
     /// Open HTTP connections at most; further ones wait in the kernel's backlog.
     max_connections: usize = 512,
         env "CALIPER_MAX_CONNECTIONS", help "Open HTTP connections at most [default: 512].";
+    /// PostgreSQL URL (`postgres://user@host/db`) of a store shared by replicas; empty: the
+    /// embedded SQLite store in `data_dir`. Tokens are required when it is set.
+    database_url: String = String::new(),
+        env "CALIPER_DATABASE_URL", help "PostgreSQL URL of a store shared by replicas; default: embedded SQLite in the data directory.";
+    /// Directory of the content-addressed blobs; empty: `data_dir/blobs`. Replicas on one
+    /// PostgreSQL share it (a network file system), as they would share an S3 bucket.
+    blob_dir: String = String::new(),
+        env "CALIPER_BLOB_DIR", help "Directory of the blobs; default: DATA_DIR/blobs.";
     /// Requests per second each token may make on average (0: no limit); over it, 429 with
     /// `Retry-After`. Applies when tokens are required.
     rate_limit_per_sec: u32 = 100,
@@ -280,6 +288,12 @@ impl Config {
         if self.rate_limit_per_sec > 0 && self.rate_limit_burst == 0 {
             return bad("rate_limit_burst must be at least 1 when rate_limit_per_sec is set");
         }
+        if !self.database_url.is_empty()
+            && !(self.database_url.starts_with("postgres://")
+                || self.database_url.starts_with("postgresql://"))
+        {
+            return bad("database_url must be a postgres:// URL");
+        }
         for o in self.cors_list() {
             if !(o.starts_with("http://") || o.starts_with("https://"))
                 || o.ends_with('/')
@@ -309,7 +323,23 @@ impl Config {
     /// Whether requests need a bearer token: asked for, or listening beyond loopback without
     /// `insecure_no_auth`.
     pub fn auth_required(&self) -> bool {
-        self.auth || (!self.listen.ip().is_loopback() && !self.insecure_no_auth)
+        self.auth
+            || self.shared_store()
+            || (!self.listen.ip().is_loopback() && !self.insecure_no_auth)
+    }
+
+    /// A store shared with other replicas (PostgreSQL)?
+    pub fn shared_store(&self) -> bool {
+        !self.database_url.is_empty()
+    }
+
+    /// Where blobs live.
+    pub fn blob_path(&self) -> PathBuf {
+        if self.blob_dir.is_empty() {
+            self.data_dir.join("blobs")
+        } else {
+            PathBuf::from(&self.blob_dir)
+        }
     }
 
     /// The CORS origins, split.

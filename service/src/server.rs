@@ -13,7 +13,7 @@ use crate::blobs::Blobs;
 use crate::config::Config;
 use crate::jobs::worker::{self, Shutdown};
 use crate::state::AppState;
-use crate::store::{BlobRefs, JobQueue, SqliteStore};
+use crate::store::{PgStore, SqliteStore, Store};
 
 /// Why the service could not start.
 #[derive(Debug, thiserror::Error)]
@@ -51,37 +51,89 @@ pub fn metrics_handle() -> Option<PrometheusHandle> {
         .clone()
 }
 
-/// Open the store and blobs of the embedded profile in `config.data_dir`.
-pub async fn open_state(config: Config) -> Result<(AppState, File), StartError> {
+/// Open the store and blobs: the embedded profile (SQLite + blobs in `config.data_dir`,
+/// held exclusively), or a replica of the production profile (PostgreSQL shared with other
+/// replicas; the data directory then holds only this process's temporary files).
+pub async fn open_state(config: Config) -> Result<(AppState, Option<File>), StartError> {
     let dir = config.data_dir.clone();
     let show = dir.display().to_string();
     std::fs::create_dir_all(dir.join("tmp")).map_err(|e| StartError::DataDir(show.clone(), e))?;
-    let lock = File::create(dir.join("LOCK")).map_err(|e| StartError::DataDir(show.clone(), e))?;
-    if lock.try_lock().is_err() {
-        return Err(StartError::Locked(show));
-    }
-    // Leftovers of interrupted uploads.
-    if let Ok(entries) = std::fs::read_dir(dir.join("tmp")) {
-        for e in entries.flatten() {
-            let _ = std::fs::remove_file(e.path());
+    let store: Arc<dyn Store> = if config.shared_store() {
+        Arc::new(PgStore::connect(&config.database_url).await?)
+    } else {
+        Arc::new(SqliteStore::open(&dir.join("caliper.db")).await?)
+    };
+    let lock = if store.shared() {
+        None
+    } else {
+        let lock =
+            File::create(dir.join("LOCK")).map_err(|e| StartError::DataDir(show.clone(), e))?;
+        if lock.try_lock().is_err() {
+            return Err(StartError::Locked(show));
         }
-    }
-    let store = SqliteStore::open(&dir.join("caliper.db")).await?;
-    // We hold the data directory exclusively: any job still marked running belonged to a
-    // previous process that died, so it can be re-queued now rather than after lease expiry.
-    let recovered = store.recover_leases(crate::clock::now_ms(), true).await?;
-    if recovered > 0 {
-        tracing::warn!(
-            jobs = recovered,
-            "re-queued jobs left running by a previous process"
-        );
-    }
-    // Pins belong to writers of a previous process (we hold the store alone): drop them; the
-    // blobs they protected become GC candidates.
-    store.clear_pins(crate::clock::now_ms()).await?;
-    let blobs = Blobs::local(&dir.join("blobs"))?;
-    let state = AppState::new(config, Arc::new(store), blobs, metrics_handle());
+        // Leftovers of interrupted uploads.
+        if let Ok(entries) = std::fs::read_dir(dir.join("tmp")) {
+            for e in entries.flatten() {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+        // We hold the store exclusively: any job still marked running belonged to a previous
+        // process that died, so it can be re-queued now rather than after lease expiry.
+        let recovered = store.recover_leases(crate::clock::now_ms(), true).await?;
+        if recovered > 0 {
+            tracing::warn!(
+                jobs = recovered,
+                "re-queued jobs left running by a previous process"
+            );
+        }
+        // Pins belong to writers of a previous process: drop them; the blobs they protected
+        // become GC candidates.
+        store.clear_pins(crate::clock::now_ms()).await?;
+        Some(lock)
+    };
+    let blobs = Blobs::local(&config.blob_path())?;
+    let state = AppState::new(config, store, blobs, metrics_handle());
     Ok((state, lock))
+}
+
+/// Wake this replica's workers when any replica queues a job (`LISTEN`); polling stays the
+/// fallback if the connection drops.
+fn listen_for_jobs(state: &AppState, tracker: &TaskTracker, stop: tokio_util::sync::CancellationToken) {
+    let Some(pg) = state.store().as_pg() else {
+        return;
+    };
+    let pool = pg.pool().clone();
+    let state = state.clone();
+    tracker.spawn(async move {
+        loop {
+            let mut listener = match sqlx::postgres::PgListener::connect_with(&pool).await {
+                Ok(l) => l,
+                Err(e) => {
+                    tracing::warn!(error = %e, "LISTEN connection failed; retrying");
+                    tokio::select! {
+                        _ = stop.cancelled() => return,
+                        _ = tokio::time::sleep(Duration::from_secs(1)) => continue,
+                    }
+                }
+            };
+            if let Err(e) = listener.listen(crate::store::postgres::JOBS_CHANNEL).await {
+                tracing::warn!(error = %e, "LISTEN failed; retrying");
+                continue;
+            }
+            loop {
+                tokio::select! {
+                    _ = stop.cancelled() => return,
+                    n = listener.recv() => match n {
+                        Ok(_) => state.wake_workers(),
+                        Err(e) => {
+                            tracing::warn!(error = %e, "LISTEN connection lost; reconnecting");
+                            break;
+                        }
+                    },
+                }
+            }
+        }
+    });
 }
 
 /// A running service.
@@ -92,7 +144,7 @@ pub struct Server {
     http_stop: tokio_util::sync::CancellationToken,
     http: JoinHandle<()>,
     tracker: TaskTracker,
-    _lock: File,
+    _lock: Option<File>,
 }
 
 /// Start the service: workers and the HTTP listener.
@@ -102,6 +154,7 @@ pub async fn start(config: Config) -> Result<Server, StartError> {
     let shutdown = Shutdown::default();
     let tracker = TaskTracker::new();
     worker::start(state.clone(), shutdown.clone(), &tracker);
+    listen_for_jobs(&state, &tracker, shutdown.stop.clone());
     let listener = tokio::net::TcpListener::bind(listen)
         .await
         .map_err(|e| StartError::Listen(listen, e))?;

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use clap::{Args, Subcommand};
 use uuid::Uuid;
 
-use crate::store::{Scope, SqliteStore, Store};
+use crate::store::{PgStore, Scope, SqliteStore, Store};
 
 /// Where the tokens live.
 #[derive(Debug, Args)]
@@ -14,6 +14,9 @@ pub struct TokenArgs {
     /// Data directory of the embedded store (as for `caliper serve`).
     #[arg(long, env = "CALIPER_DATA_DIR", default_value = "./caliper-data", global = true)]
     pub data_dir: PathBuf,
+    /// PostgreSQL store shared by replicas (as for `caliper serve`); overrides `--data-dir`.
+    #[arg(long, env = "CALIPER_DATABASE_URL", global = true)]
+    pub database_url: Option<String>,
     #[command(subcommand)]
     pub action: TokenAction,
 }
@@ -44,6 +47,12 @@ fn parse_scope(s: &str) -> Result<Scope, String> {
 
 /// Run a token command; the text to print on success.
 pub async fn run(args: TokenArgs) -> Result<String, String> {
+    if let Some(url) = args.database_url.as_deref().filter(|u| !u.is_empty()) {
+        let store = PgStore::connect(url)
+            .await
+            .map_err(|e| format!("cannot open the store: {e}"))?;
+        return run_on(&store, args.action).await;
+    }
     std::fs::create_dir_all(&args.data_dir)
         .map_err(|e| format!("cannot create {}: {e}", args.data_dir.display()))?;
     let store = SqliteStore::open(&args.data_dir.join("caliper.db"))

@@ -18,6 +18,7 @@ mod jobs;
 mod offline;
 mod openapi;
 mod photometric;
+mod postgres;
 mod readme;
 mod recovery;
 mod registry;

@@ -44,7 +44,11 @@ fn job_bodies(text: &str) -> Vec<serde_json::Value> {
         if let Some(i) = l.find("-d '") {
             let rest = &l[i + 4..];
             if let Some(j) = rest.find('\'') {
-                out.push(serde_json::from_str(&rest[..j]).expect("README -d body is JSON"));
+                let v: serde_json::Value =
+                    serde_json::from_str(&rest[..j]).expect("README -d body is JSON");
+                if v.get("kind").is_some() {
+                    out.push(v);
+                }
             }
         }
     }
@@ -84,6 +88,27 @@ fn readme_job_bodies_pass_validation() {
     }
 }
 
+/// The token requests of the README (`-d` bodies with a `scope`) are valid requests.
+#[test]
+fn readme_token_bodies_are_valid() {
+    let mut n = 0;
+    for l in code_lines(&readme()) {
+        let Some(i) = l.find("-d '") else { continue };
+        let rest = &l[i + 4..];
+        let Some(j) = rest.find('\'') else { continue };
+        let v: serde_json::Value = serde_json::from_str(&rest[..j]).expect("JSON body");
+        if v.get("scope").is_none() {
+            continue;
+        }
+        let req: caliper_service::api::tokens::CreateTokenRequest =
+            serde_json::from_value(v.clone()).unwrap_or_else(|e| panic!("{v}: {e}"));
+        caliper_service::auth::generate(&req.name, req.scope, req.devices, 0)
+            .unwrap_or_else(|e| panic!("{v}: {e}"));
+        n += 1;
+    }
+    assert!(n >= 2, "found {n} token bodies");
+}
+
 #[test]
 fn readme_cli_lines_parse() {
     let bin = caliper_bin();
@@ -119,6 +144,34 @@ fn readme_cli_lines_parse() {
                 "`caliper run {l}` does not parse: {err}"
             );
         }
+    }
+}
+
+/// `caliper token …` lines run as written (in an empty folder) and succeed.
+#[test]
+fn readme_token_lines_run() {
+    let bin = caliper_bin();
+    let dir = tempfile::tempdir().expect("tempdir");
+    let lines: Vec<String> = code_lines(&readme())
+        .into_iter()
+        .filter_map(|l| {
+            let l = l.split("  #").next().unwrap_or(&l).trim().to_string();
+            l.strip_prefix("caliper token ").map(String::from)
+        })
+        .collect();
+    assert!(lines.len() >= 2, "found only {} token lines", lines.len());
+    for l in lines {
+        let out = Command::new(&bin)
+            .arg("token")
+            .args(shell_words(&l))
+            .current_dir(dir.path())
+            .output()
+            .expect("run caliper");
+        assert!(
+            out.status.success(),
+            "`caliper token {l}` failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
 }
 

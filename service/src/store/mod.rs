@@ -6,6 +6,7 @@
 //! RETURNING`, and every write by a worker is fenced by `(lease_owner, attempt)`, which is what
 //! a PostgreSQL implementation (`FOR UPDATE SKIP LOCKED`) needs too.
 
+pub mod postgres;
 pub mod sqlite;
 
 use async_trait::async_trait;
@@ -14,6 +15,7 @@ use serde_json::Value;
 use utoipa::ToSchema;
 use uuid::Uuid;
 
+pub use postgres::PgStore;
 pub use sqlite::SqliteStore;
 
 /// Storage failure.
@@ -536,6 +538,17 @@ pub trait Store:
 {
     /// Can we reach the database?
     async fn ping(&self) -> StoreResult<()>;
+
+    /// Do other processes share this store (replicas on one PostgreSQL)? Then nothing may be
+    /// assumed about jobs or pins at start: another replica may own them.
+    fn shared(&self) -> bool {
+        false
+    }
+
+    /// The PostgreSQL store behind this one, for `LISTEN`.
+    fn as_pg(&self) -> Option<&PgStore> {
+        None
+    }
 }
 
 #[cfg(test)]
