@@ -40,7 +40,9 @@ pub struct NewToken {
 pub enum TokenError {
     #[error("name must be 1–64 printable characters")]
     Name,
-    #[error("device serials must be 1–128 characters of letters, digits, `.`, `_`, `-` (at most 1000)")]
+    #[error(
+        "device serials must be 1–128 characters of letters, digits, `.`, `_`, `-` (at most 1000)"
+    )]
     Devices,
     #[error("a device-scoped token cannot be an admin token")]
     AdminDevices,
@@ -189,7 +191,10 @@ pub async fn authenticate(State(state): State<AppState>, mut req: Request, next:
         .headers()
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer ").or_else(|| v.strip_prefix("bearer ")))
+        .and_then(|v| {
+            v.strip_prefix("Bearer ")
+                .or_else(|| v.strip_prefix("bearer "))
+        })
         .map(str::trim);
     let Some(secret) = secret.filter(|s| s.starts_with(TOKEN_PREFIX) && s.len() < 200) else {
         return unauthorized("send `Authorization: Bearer clp_…` (see `caliper token create`)");

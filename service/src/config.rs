@@ -288,10 +288,8 @@ impl Config {
         if self.rate_limit_per_sec > 0 && self.rate_limit_burst == 0 {
             return bad("rate_limit_burst must be at least 1 when rate_limit_per_sec is set");
         }
-        if !self.database_url.is_empty()
-            && !(self.database_url.starts_with("postgres://")
-                || self.database_url.starts_with("postgresql://"))
-        {
+        let url = &self.database_url;
+        if !(url.is_empty() || url.starts_with("postgres://") || url.starts_with("postgresql://")) {
             return bad("database_url must be a postgres:// URL");
         }
         for o in self.cors_list() {

@@ -54,16 +54,8 @@ pub const PROBLEM_CODES: &[(&str, u16, &str)] = &[
         400,
         "Export format not available for this document",
     ),
-    (
-        "unauthorized",
-        401,
-        "A valid bearer token is required",
-    ),
-    (
-        "forbidden",
-        403,
-        "The token's scope does not allow this",
-    ),
+    ("unauthorized", 401, "A valid bearer token is required"),
+    ("forbidden", 403, "The token's scope does not allow this"),
     ("not_found", 404, "Resource not found"),
     ("route_not_found", 404, "No such route"),
     (
@@ -119,11 +111,7 @@ pub const PROBLEM_CODES: &[(&str, u16, &str)] = &[
     ("corrupt_archive", 422, "Archive cannot be read"),
     ("invalid_imu_log", 422, "IMU log cannot be parsed"),
     ("queue_full", 429, "Job queue is full"),
-    (
-        "rate_limited",
-        429,
-        "Too many requests for this token",
-    ),
+    ("rate_limited", 429, "Too many requests for this token"),
     ("internal", 500, "Internal server error"),
     ("unavailable", 503, "Service unavailable"),
 ];

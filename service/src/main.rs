@@ -125,10 +125,14 @@ fn serve(args: ConfigArgs, grace: Duration) -> ExitCode {
         }
     };
     if config.auth_required() {
+        let store = if config.shared_store() {
+            "--database-url …".to_string()
+        } else {
+            format!("--data-dir {}", config.data_dir.display())
+        };
         eprintln!(
             "caliper: bearer tokens required on every route but /healthz, /readyz, /openapi.json, /docs and /ui \
-             (make one with `caliper token create --scope admin --name me --data-dir {}`)",
-            config.data_dir.display()
+             (make one with `caliper token create --scope admin --name me {store}`)"
         );
     } else {
         eprintln!(

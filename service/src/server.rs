@@ -98,7 +98,11 @@ pub async fn open_state(config: Config) -> Result<(AppState, Option<File>), Star
 
 /// Wake this replica's workers when any replica queues a job (`LISTEN`); polling stays the
 /// fallback if the connection drops.
-fn listen_for_jobs(state: &AppState, tracker: &TaskTracker, stop: tokio_util::sync::CancellationToken) {
+fn listen_for_jobs(
+    state: &AppState,
+    tracker: &TaskTracker,
+    stop: tokio_util::sync::CancellationToken,
+) {
     let Some(pg) = state.store().as_pg() else {
         return;
     };

@@ -12,7 +12,12 @@ use crate::store::{PgStore, Scope, SqliteStore, Store};
 #[derive(Debug, Args)]
 pub struct TokenArgs {
     /// Data directory of the embedded store (as for `caliper serve`).
-    #[arg(long, env = "CALIPER_DATA_DIR", default_value = "./caliper-data", global = true)]
+    #[arg(
+        long,
+        env = "CALIPER_DATA_DIR",
+        default_value = "./caliper-data",
+        global = true
+    )]
     pub data_dir: PathBuf,
     /// PostgreSQL store shared by replicas (as for `caliper serve`); overrides `--data-dir`.
     #[arg(long, env = "CALIPER_DATABASE_URL", global = true)]

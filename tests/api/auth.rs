@@ -11,13 +11,9 @@ use crate::common::*;
 /// A token made straight in the server's store (as `caliper token create` does).
 async fn admin_token(s: &TestServer) -> String {
     let state = &s.server.as_ref().expect("running").state;
-    let new = caliper_service::auth::generate(
-        "admin",
-        caliper_service::store::Scope::Admin,
-        None,
-        0,
-    )
-    .expect("token");
+    let new =
+        caliper_service::auth::generate("admin", caliper_service::store::Scope::Admin, None, 0)
+            .expect("token");
     state
         .store()
         .insert_token(&new.record, &new.hash)
@@ -52,7 +48,14 @@ async fn get(s: &TestServer, path: &str, token: Option<&str>) -> (u16, Value) {
 }
 
 async fn create_token(s: &TestServer, admin: &str, body: Value) -> String {
-    let (st, v, _) = call(s, reqwest::Method::POST, "/v1/tokens", Some(admin), Some(body)).await;
+    let (st, v, _) = call(
+        s,
+        reqwest::Method::POST,
+        "/v1/tokens",
+        Some(admin),
+        Some(body),
+    )
+    .await;
     assert_eq!(st, 201, "{v}");
     assert!(v["token"].as_str().is_some_and(|t| t.starts_with("clp_")));
     v["token"].as_str().expect("secret").to_owned()
@@ -81,7 +84,10 @@ async fn wait_done(s: &TestServer, id: &str, token: &str) -> Value {
     loop {
         let (st, j) = get(s, &format!("/v1/jobs/{id}"), Some(token)).await;
         assert_eq!(st, 200, "{j}");
-        if matches!(j["status"].as_str(), Some("succeeded" | "failed" | "canceled")) {
+        if matches!(
+            j["status"].as_str(),
+            Some("succeeded" | "failed" | "canceled")
+        ) {
             return j;
         }
         assert!(start.elapsed() < Duration::from_secs(60), "{j}");
@@ -93,14 +99,25 @@ async fn wait_done(s: &TestServer, id: &str, token: &str) -> Value {
 async fn tokens_guard_every_route_by_scope() {
     let s = start_with(|c| c.auth = true).await;
     // Open routes stay open.
-    for path in ["/healthz", "/readyz", "/openapi.json", "/ui/", "/problems/unauthorized"] {
+    for path in [
+        "/healthz",
+        "/readyz",
+        "/openapi.json",
+        "/ui/",
+        "/problems/unauthorized",
+    ] {
         let r = s.client.get(s.url(path)).send().await.expect("get");
         assert_eq!(r.status(), 200, "{path}");
     }
     // Everything else needs a token.
     let (st, p, h) = call(&s, reqwest::Method::GET, "/v1/jobs", None, None).await;
     assert_eq!((st, p["code"].as_str()), (401, Some("unauthorized")), "{p}");
-    assert!(h["www-authenticate"].to_str().expect("header").starts_with("Bearer"));
+    assert!(
+        h["www-authenticate"]
+            .to_str()
+            .expect("header")
+            .starts_with("Bearer")
+    );
     for bad in ["clp_0000000000000000000000000000000000000000", "nonsense"] {
         let (st, p) = get(&s, "/v1/datasets", Some(bad)).await;
         assert_eq!((st, p["code"].as_str()), (401, Some("unauthorized")), "{p}");
@@ -136,7 +153,10 @@ async fn tokens_guard_every_route_by_scope() {
     let (st, list) = get(&s, "/v1/tokens", Some(&admin)).await;
     assert_eq!(st, 200);
     assert_eq!(list.as_array().expect("list").len(), 3);
-    assert!(!list.to_string().contains(&read), "a secret leaked into the list");
+    assert!(
+        !list.to_string().contains(&read),
+        "a secret leaked into the list"
+    );
     let read_id = list
         .as_array()
         .expect("list")
@@ -183,8 +203,18 @@ async fn tokens_guard_every_route_by_scope() {
 async fn a_device_token_sees_only_its_own_devices() {
     let s = start_with(|c| c.auth = true).await;
     let admin = admin_token(&s).await;
-    let cam1 = create_token(&s, &admin, json!({"name": "cam-1", "scope": "write", "devices": ["cam-1"]})).await;
-    let cam2 = create_token(&s, &admin, json!({"name": "cam-2", "scope": "write", "devices": ["cam-2"]})).await;
+    let cam1 = create_token(
+        &s,
+        &admin,
+        json!({"name": "cam-1", "scope": "write", "devices": ["cam-1"]}),
+    )
+    .await;
+    let cam2 = create_token(
+        &s,
+        &admin,
+        json!({"name": "cam-2", "scope": "write", "devices": ["cam-2"]}),
+    )
+    .await;
     let fleet = create_token(&s, &admin, json!({"name": "prov", "scope": "read"})).await;
 
     // cam-1 uploads and files its own calibration; not for another device, not without one.
@@ -196,7 +226,14 @@ async fn a_device_token_sees_only_its_own_devices() {
         if !device.is_null() {
             body["device"] = device;
         }
-        let (st, p, _) = call(&s, reqwest::Method::POST, "/v1/jobs", Some(&cam1), Some(body)).await;
+        let (st, p, _) = call(
+            &s,
+            reqwest::Method::POST,
+            "/v1/jobs",
+            Some(&cam1),
+            Some(body),
+        )
+        .await;
         assert_eq!((st, p["field"].as_str()), (want, Some("device")), "{p}");
     }
     let (st, job, _) = call(
@@ -220,21 +257,49 @@ async fn a_device_token_sees_only_its_own_devices() {
         Some(json!({"kind": "blur_score", "dataset": ds_id, "device": "cam-2"})),
     )
     .await;
-    assert_eq!((st, p["code"].as_str()), (422, Some("unknown_dataset")), "{p}");
+    assert_eq!(
+        (st, p["code"].as_str()),
+        (422, Some("unknown_dataset")),
+        "{p}"
+    );
 
     // … and every read of cam-1's things answers like a missing resource.
     let missing_job = "01935f2c-8b11-7d20-a1b2-c3d4e5f60718";
     let missing_ds = "01935f2c-7a4e-7cc2-9d1e-3b8a2f6c1d00";
     let doc = "/v1/devices/cam-1/documents/cam0/blur_score";
     let pairs = [
-        (format!("/v1/jobs/{job_id}"), format!("/v1/jobs/{missing_job}")),
-        (format!("/v1/jobs/{job_id}/result"), format!("/v1/jobs/{missing_job}/result")),
-        (format!("/v1/jobs/{job_id}/artifacts"), format!("/v1/jobs/{missing_job}/artifacts")),
-        (format!("/v1/datasets/{ds_id}"), format!("/v1/datasets/{missing_ds}")),
-        (format!("/v1/datasets/{ds_id}/files/0"), format!("/v1/datasets/{missing_ds}/files/0")),
-        (format!("{doc}/latest"), "/v1/devices/cam-9/documents/cam0/blur_score/latest".into()),
-        (format!("{doc}/1"), "/v1/devices/cam-9/documents/cam0/blur_score/1".into()),
-        (doc.into(), "/v1/devices/cam-9/documents/cam0/blur_score".into()),
+        (
+            format!("/v1/jobs/{job_id}"),
+            format!("/v1/jobs/{missing_job}"),
+        ),
+        (
+            format!("/v1/jobs/{job_id}/result"),
+            format!("/v1/jobs/{missing_job}/result"),
+        ),
+        (
+            format!("/v1/jobs/{job_id}/artifacts"),
+            format!("/v1/jobs/{missing_job}/artifacts"),
+        ),
+        (
+            format!("/v1/datasets/{ds_id}"),
+            format!("/v1/datasets/{missing_ds}"),
+        ),
+        (
+            format!("/v1/datasets/{ds_id}/files/0"),
+            format!("/v1/datasets/{missing_ds}/files/0"),
+        ),
+        (
+            format!("{doc}/latest"),
+            "/v1/devices/cam-9/documents/cam0/blur_score/latest".into(),
+        ),
+        (
+            format!("{doc}/1"),
+            "/v1/devices/cam-9/documents/cam0/blur_score/1".into(),
+        ),
+        (
+            doc.into(),
+            "/v1/devices/cam-9/documents/cam0/blur_score".into(),
+        ),
     ];
     for (hidden, missing) in &pairs {
         let (a, pa) = get(&s, hidden, Some(&cam2)).await;
@@ -242,8 +307,10 @@ async fn a_device_token_sees_only_its_own_devices() {
         assert_eq!((a, b), (404, 404), "{hidden}: {pa} / {missing}: {pb}");
         assert_eq!(pa["code"], pb["code"], "{hidden}");
         assert_eq!(
-            pa.as_object().map(|o| o.keys().cloned().collect::<Vec<_>>()),
-            pb.as_object().map(|o| o.keys().cloned().collect::<Vec<_>>()),
+            pa.as_object()
+                .map(|o| o.keys().cloned().collect::<Vec<_>>()),
+            pb.as_object()
+                .map(|o| o.keys().cloned().collect::<Vec<_>>()),
             "{hidden}: same problem shape"
         );
         // The owner and a fleet-wide reader see it.
@@ -267,13 +334,22 @@ async fn a_device_token_sees_only_its_own_devices() {
     let (_, devs) = get(&s, "/v1/devices", Some(&cam1)).await;
     assert_eq!(devs["items"][0]["serial"], "cam-1", "{devs}");
     let (_, jobs) = get(&s, "/v1/jobs", Some(&cam2)).await;
-    assert!(jobs["items"].as_array().expect("items").is_empty(), "{jobs}");
+    assert!(
+        jobs["items"].as_array().expect("items").is_empty(),
+        "{jobs}"
+    );
     let (_, datasets) = get(&s, "/v1/datasets", Some(&cam2)).await;
-    assert!(datasets["items"].as_array().expect("items").is_empty(), "{datasets}");
+    assert!(
+        datasets["items"].as_array().expect("items").is_empty(),
+        "{datasets}"
+    );
     let (_, datasets) = get(&s, "/v1/datasets", Some(&cam1)).await;
     assert_eq!(datasets["items"].as_array().expect("items").len(), 1);
     let (_, docs) = get(&s, "/v1/devices/cam-1/documents", Some(&cam2)).await;
-    assert!(docs["documents"].as_array().expect("docs").is_empty(), "{docs}");
+    assert!(
+        docs["documents"].as_array().expect("docs").is_empty(),
+        "{docs}"
+    );
     s.stop().await;
 }
 
@@ -297,7 +373,11 @@ async fn each_token_is_rate_limited_with_retry_after() {
     }
     let (p, h) = limited.expect("the burst ran out");
     assert_eq!(p["code"], "rate_limited");
-    let wait: u64 = h["retry-after"].to_str().expect("header").parse().expect("seconds");
+    let wait: u64 = h["retry-after"]
+        .to_str()
+        .expect("header")
+        .parse()
+        .expect("seconds");
     assert!((1..=2).contains(&wait), "{wait}");
     // Another token is not affected.
     let (st, _) = get(&s, "/v1/jobs", Some(&other)).await;
@@ -313,15 +393,22 @@ async fn cors_allows_only_the_configured_origins() {
             .request(reqwest::Method::OPTIONS, s.url("/v1/jobs"))
             .header("origin", origin)
             .header("access-control-request-method", "POST")
-            .header("access-control-request-headers", "authorization,content-type")
+            .header(
+                "access-control-request-headers",
+                "authorization,content-type",
+            )
             .send()
     };
-    let ok = preflight("https://dash.example.com").await.expect("preflight");
+    let ok = preflight("https://dash.example.com")
+        .await
+        .expect("preflight");
     assert_eq!(
         ok.headers()["access-control-allow-origin"],
         "https://dash.example.com"
     );
-    let other = preflight("https://evil.example.com").await.expect("preflight");
+    let other = preflight("https://evil.example.com")
+        .await
+        .expect("preflight");
     assert!(other.headers().get("access-control-allow-origin").is_none());
     s.stop().await;
 }
@@ -331,11 +418,23 @@ fn token_cli_makes_a_working_token_without_a_server() {
     let bin = caliper_bin();
     let dir = tempfile::tempdir().expect("dir");
     let out = std::process::Command::new(&bin)
-        .args(["token", "create", "--scope", "admin", "--name", "first", "--data-dir"])
+        .args([
+            "token",
+            "create",
+            "--scope",
+            "admin",
+            "--name",
+            "first",
+            "--data-dir",
+        ])
         .arg(dir.path())
         .output()
         .expect("run");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let secret = String::from_utf8_lossy(&out.stdout).trim().to_owned();
     assert!(secret.starts_with("clp_") && secret.len() == 44, "{secret}");
     let list = std::process::Command::new(&bin)
@@ -346,7 +445,15 @@ fn token_cli_makes_a_working_token_without_a_server() {
     let text = String::from_utf8_lossy(&list.stdout);
     assert!(text.contains("first") && text.contains(&secret[..12]) && !text.contains(&secret));
     let bad = std::process::Command::new(&bin)
-        .args(["token", "create", "--scope", "root", "--name", "x", "--data-dir"])
+        .args([
+            "token",
+            "create",
+            "--scope",
+            "root",
+            "--name",
+            "x",
+            "--data-dir",
+        ])
         .arg(dir.path())
         .output()
         .expect("run");
@@ -358,7 +465,11 @@ fn token_cli_makes_a_working_token_without_a_server() {
     let rt = tokio::runtime::Runtime::new().expect("rt");
     rt.block_on(async {
         let c = reqwest::Client::new();
-        let r = c.get(format!("{base}/v1/tokens")).send().await.expect("get");
+        let r = c
+            .get(format!("{base}/v1/tokens"))
+            .send()
+            .await
+            .expect("get");
         assert_eq!(r.status(), 401);
         let r = c
             .get(format!("{base}/v1/tokens"))

@@ -91,7 +91,11 @@ async fn browser(driver: &Driver, downloads: &Path) -> Client {
 struct BrowserLog;
 
 impl WebDriverCompatibleCommand for BrowserLog {
-    fn endpoint(&self, base: &url::Url, session: Option<&str>) -> Result<url::Url, url::ParseError> {
+    fn endpoint(
+        &self,
+        base: &url::Url,
+        session: Option<&str>,
+    ) -> Result<url::Url, url::ParseError> {
         base.join(&format!("session/{}/se/log", session.unwrap_or_default()))
     }
     fn method_and_body(&self, _: &url::Url) -> (http::Method, Option<String>) {
@@ -195,7 +199,10 @@ async fn dashboard_runs_a_calibration_end_to_end() {
         .collect();
     c.goto(&s.url("/ui/#/run")).await.expect("run page");
     let input = wait_css(&c, "#run-files").await;
-    input.send_keys(&paths.join("\n")).await.expect("choose files");
+    input
+        .send_keys(&paths.join("\n"))
+        .await
+        .expect("choose files");
     wait_css(&c, "#upload-status[data-dataset]").await;
     let upload_pct = c
         .execute(
@@ -204,26 +211,55 @@ async fn dashboard_runs_a_calibration_end_to_end() {
         )
         .await
         .expect("progress value");
-    assert_eq!(upload_pct.as_f64(), Some(100.0), "upload progress ends at 100 %");
+    assert_eq!(
+        upload_pct.as_f64(),
+        Some(100.0),
+        "upload progress ends at 100 %"
+    );
     let kind = wait_css(&c, "#run-kind").await;
     kind.select_by_value("camera_calibration")
         .await
         .expect("select kind");
     screenshot(&c, "run").await;
-    for (name, value) in [("board.cols", "9"), ("board.rows", "6"), ("board.square", "0.025")] {
+    for (name, value) in [
+        ("board.cols", "9"),
+        ("board.rows", "6"),
+        ("board.square", "0.025"),
+    ] {
         wait_css(&c, &format!("[name='{name}']"))
             .await
             .send_keys(value)
             .await
             .expect("type param");
     }
-    wait_css(&c, "#run-device").await.send_keys("cam-ui").await.expect("device");
-    wait_css(&c, "#run-sensor").await.send_keys("cam0").await.expect("sensor");
-    wait_css(&c, "#run-submit").await.click().await.expect("submit");
+    wait_css(&c, "#run-device")
+        .await
+        .send_keys("cam-ui")
+        .await
+        .expect("device");
+    wait_css(&c, "#run-sensor")
+        .await
+        .send_keys("cam0")
+        .await
+        .expect("sensor");
+    wait_css(&c, "#run-submit")
+        .await
+        .click()
+        .await
+        .expect("submit");
 
     // The job page follows the job live to 100 % and renders the document.
-    let hash = wait_js(&c, "location.hash.startsWith('#/jobs/') && location.hash", Duration::from_secs(20)).await;
-    let job_id = hash.as_str().expect("hash").trim_start_matches("#/jobs/").to_owned();
+    let hash = wait_js(
+        &c,
+        "location.hash.startsWith('#/jobs/') && location.hash",
+        Duration::from_secs(20),
+    )
+    .await;
+    let job_id = hash
+        .as_str()
+        .expect("hash")
+        .trim_start_matches("#/jobs/")
+        .to_owned();
     wait_js(
         &c,
         "document.querySelector('#job-table progress') && document.querySelector('#job-table progress').value === 100",
@@ -244,6 +280,12 @@ async fn dashboard_runs_a_calibration_end_to_end() {
         .len();
     assert_eq!(bars, views, "one bar per view");
     assert!(views >= 8, "{views} views");
+    c.execute(
+        "document.querySelector('#job-result .bar-chart').scrollIntoView({block: 'center'});",
+        vec![],
+    )
+    .await
+    .expect("scroll");
     screenshot(&c, "result").await;
 
     // A second revision from fewer views, so the two differ.
@@ -258,8 +300,18 @@ async fn dashboard_runs_a_calibration_end_to_end() {
     c.goto(&s.url("/ui/#/fleet")).await.expect("fleet");
     assert_eq!(text(&c, "#fleet-count").await, "1 device");
     screenshot(&c, "fleet").await;
-    wait_css(&c, "tr[data-serial='cam-ui'] a").await.click().await.expect("open device");
-    wait_css(&c, ".diff-form button").await.click().await.expect("diff");
+    wait_css(&c, "tr[data-serial='cam-ui'] a")
+        .await
+        .click()
+        .await
+        .expect("open device");
+    wait_css(&c, ".diff-form button").await;
+    screenshot(&c, "device").await;
+    wait_css(&c, ".diff-form button")
+        .await
+        .click()
+        .await
+        .expect("diff");
     wait_css(&c, "#diff-table").await;
     let (_, diff) = s
         .get_json("/v1/devices/cam-ui/documents/cam0/camera_calibration/diff?from=1&to=2")
@@ -274,7 +326,12 @@ async fn dashboard_runs_a_calibration_end_to_end() {
         .expect("rows")
         .len();
     assert_eq!(rows as u64, changed, "the page shows the changed values");
-    assert!(c.source().await.expect("source").contains("parameters.calibration.parameters[fx]"));
+    assert!(
+        c.source()
+            .await
+            .expect("source")
+            .contains("parameters.calibration.parameters[fx]")
+    );
     screenshot(&c, "diff").await;
 
     // Download an export from the document page: the same bytes as the API's.
@@ -298,7 +355,11 @@ async fn dashboard_runs_a_calibration_end_to_end() {
         .bytes()
         .await
         .expect("bytes");
-    assert_eq!(got, want.to_vec(), "downloaded export differs from the API's");
+    assert_eq!(
+        got,
+        want.to_vec(),
+        "downloaded export differs from the API's"
+    );
 
     // Cancel a running job from the live jobs page.
     let ds3 = s.dataset(as_refs(&files[..1])).await;
@@ -353,7 +414,9 @@ async fn fleet_of_ten_thousand_devices_pages() {
         .expect("mark")
         .as_f64()
         .expect("the fleet page marks when it is on screen");
-    eprintln!("fleet page of 10,000 devices on screen after {painted:.0} ms (from navigation start)");
+    eprintln!(
+        "fleet page of 10,000 devices on screen after {painted:.0} ms (from navigation start)"
+    );
     assert!(painted < 5000.0, "fleet page took {painted} ms");
     assert_eq!(text(&c, "#fleet-count").await, "10000 devices");
     let rows = c
@@ -365,7 +428,11 @@ async fn fleet_of_ten_thousand_devices_pages() {
         rows[0].attr("data-serial").await.expect("attr").as_deref(),
         Some("dev-00000")
     );
-    wait_css(&c, "#fleet-next").await.click().await.expect("next page");
+    wait_css(&c, "#fleet-next")
+        .await
+        .click()
+        .await
+        .expect("next page");
     wait_js(
         &c,
         "document.querySelector('#fleet-table tbody tr') && document.querySelector('#fleet-table tbody tr').dataset.serial === 'dev-00050'",
@@ -373,7 +440,9 @@ async fn fleet_of_ten_thousand_devices_pages() {
     )
     .await;
     // Search narrows on the server.
-    c.goto(&s.url("/ui/#/fleet?q=dev-0999")).await.expect("search");
+    c.goto(&s.url("/ui/#/fleet?q=dev-0999"))
+        .await
+        .expect("search");
     wait_js(
         &c,
         "document.getElementById('fleet-count') && document.getElementById('fleet-count').textContent.startsWith('10 devices')",
@@ -397,7 +466,11 @@ async fn seed_devices(db: &Path, n: usize) {
     for i in 0..n {
         let serial = format!("dev-{i:05}");
         for (sensor, kind, quality) in [
-            ("cam0", "camera_calibration", json!({"rms": 0.2 + (i % 7) as f64 * 0.1, "coverage": 0.7})),
+            (
+                "cam0",
+                "camera_calibration",
+                json!({"rms": 0.2 + (i % 7) as f64 * 0.1, "coverage": 0.7}),
+            ),
             ("imu0", "imu_noise", json!({"warnings": i % 3})),
         ] {
             let body = json!({"schema": "seed", "kind": kind, "device": serial, "sensor": sensor,
@@ -417,4 +490,60 @@ async fn seed_devices(db: &Path, n: usize) {
         }
     }
     tx.commit().await.expect("commit");
+}
+
+/// With tokens on, the page asks for one, keeps it for the tab, and shows what it may see.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn dashboard_asks_for_a_token_when_the_server_needs_one() {
+    let Some(driver_bin) = driver_path() else {
+        return;
+    };
+    let s = start_with(|c| c.auth = true).await;
+    let state = &s.server.as_ref().expect("running").state;
+    let new = caliper_service::auth::generate(
+        "cam-7 reader",
+        caliper_service::store::Scope::Read,
+        Some(vec!["cam-7".into()]),
+        0,
+    )
+    .expect("token");
+    state
+        .store()
+        .insert_token(&new.record, &new.hash)
+        .await
+        .expect("stored");
+    seed_devices(&s.dir.path().join("data").join("caliper.db"), 10).await;
+    let driver = start_driver(&driver_bin).await;
+    let downloads = tempfile::tempdir().expect("downloads");
+    let c = browser(&driver, downloads.path()).await;
+    c.goto(&s.url("/ui/#/fleet")).await.expect("fleet");
+    wait_js(
+        &c,
+        "document.getElementById('token-dialog').open",
+        Duration::from_secs(10),
+    )
+    .await;
+    wait_css(&c, "#token-input")
+        .await
+        .send_keys(&new.secret)
+        .await
+        .expect("type token");
+    wait_css(&c, "#token-form button[value='save']")
+        .await
+        .click()
+        .await
+        .expect("save");
+    wait_js(
+        &c,
+        "document.getElementById('fleet-count') && document.getElementById('fleet-count').textContent === '0 devices'",
+        Duration::from_secs(10),
+    )
+    .await;
+    let stored = c
+        .execute("return sessionStorage.getItem('caliper.token');", vec![])
+        .await
+        .expect("session storage");
+    assert_eq!(stored.as_str(), Some(new.secret.as_str()));
+    c.close().await.expect("close");
+    s.stop().await;
 }

@@ -11,14 +11,14 @@ use sqlx::Connection;
 use crate::common::*;
 
 /// A fresh database on the test server, dropped at the end.
-struct TestDb {
+pub(crate) struct TestDb {
     admin_url: String,
     name: String,
-    url: String,
+    pub(crate) url: String,
 }
 
 impl TestDb {
-    async fn create() -> Option<Self> {
+    pub(crate) async fn create() -> Option<Self> {
         let Some(admin_url) = std::env::var("CALIPER_TEST_POSTGRES_URL")
             .ok()
             .filter(|u| !u.is_empty())
@@ -37,7 +37,9 @@ impl TestDb {
             .execute(&mut c)
             .await
             .expect("create database");
-        let base = admin_url.rsplit_once('/').map_or(admin_url.as_str(), |(b, _)| b);
+        let base = admin_url
+            .rsplit_once('/')
+            .map_or(admin_url.as_str(), |(b, _)| b);
         let url = format!("{base}/{name}");
         Some(Self {
             admin_url,
@@ -46,7 +48,7 @@ impl TestDb {
         })
     }
 
-    async fn drop_db(self) {
+    pub(crate) async fn drop_db(self) {
         if let Ok(mut c) = sqlx::PgConnection::connect(&self.admin_url).await {
             let _ = sqlx::query(sqlx::AssertSqlSafe(format!(
                 "DROP DATABASE IF EXISTS {} WITH (FORCE)",
@@ -69,10 +71,23 @@ fn uuid_simple() -> String {
 /// The first admin token, made with the CLI against the shared store.
 fn admin_token(url: &str) -> String {
     let out = std::process::Command::new(caliper_bin())
-        .args(["token", "create", "--scope", "admin", "--name", "tests", "--database-url", url])
+        .args([
+            "token",
+            "create",
+            "--scope",
+            "admin",
+            "--name",
+            "tests",
+            "--database-url",
+            url,
+        ])
         .output()
         .expect("caliper token create");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     String::from_utf8_lossy(&out.stdout).trim().to_owned()
 }
 
@@ -86,8 +101,6 @@ fn replica(db: &TestDb, blobs: &std::path::Path, extra: &[&str]) -> (Proc, tempf
         blob_dir.as_str(),
         "--lease-secs",
         "3",
-        "--heartbeat-ms",
-        "200",
         "--rate-limit-per-sec",
         "0",
     ];
@@ -129,7 +142,10 @@ impl Api {
     async fn upload(&self, base: &str, files: Vec<(String, Vec<u8>)>) -> String {
         let mut form = reqwest::multipart::Form::new();
         for (name, bytes) in files {
-            form = form.part("file", reqwest::multipart::Part::bytes(bytes).file_name(name));
+            form = form.part(
+                "file",
+                reqwest::multipart::Part::bytes(bytes).file_name(name),
+            );
         }
         let r = self
             .client
@@ -149,7 +165,10 @@ impl Api {
         loop {
             let (st, j) = self.get(base, &format!("/v1/jobs/{id}")).await;
             assert_eq!(st, 200, "{j}");
-            if matches!(j["status"].as_str(), Some("succeeded" | "failed" | "canceled")) {
+            if matches!(
+                j["status"].as_str(),
+                Some("succeeded" | "failed" | "canceled")
+            ) {
                 return j;
             }
             assert!(start.elapsed() < timeout, "job {id} still {j}");
@@ -207,11 +226,10 @@ async fn three_replicas_share_one_store_and_run_each_job_once() {
     assert_eq!(list.as_array().expect("revisions").len(), n);
     // Which replicas ran them: the attempts table is the record (more than one did).
     let mut c = sqlx::PgConnection::connect(&db.url).await.expect("connect");
-    let workers: i64 =
-        sqlx::query_scalar("SELECT COUNT(DISTINCT worker) FROM job_attempts")
-            .fetch_one(&mut c)
-            .await
-            .expect("count");
+    let workers: i64 = sqlx::query_scalar("SELECT COUNT(DISTINCT worker) FROM job_attempts")
+        .fetch_one(&mut c)
+        .await
+        .expect("count");
     let attempts: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM job_attempts")
         .fetch_one(&mut c)
         .await
@@ -271,7 +289,11 @@ async fn a_killed_replica_job_is_finished_by_another_after_its_lease() {
             .fetch_all(&mut c)
             .await
             .expect("attempts");
-    assert_eq!(outcomes.first().cloned().flatten().as_deref(), Some("lease_lost"), "{outcomes:?}");
+    assert_eq!(
+        outcomes.first().cloned().flatten().as_deref(),
+        Some("lease_lost"),
+        "{outcomes:?}"
+    );
     assert_eq!(outcomes.len(), 2, "{outcomes:?}");
     let docs: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM documents WHERE device = 'cam-kill'")
         .fetch_one(&mut c)
@@ -296,7 +318,11 @@ async fn a_revoked_token_stops_on_every_replica_at_once() {
         token: admin.clone(),
     };
     let (st, t) = api
-        .post(&reps[0].0.base, "/v1/tokens", &json!({"name": "ro", "scope": "read"}))
+        .post(
+            &reps[0].0.base,
+            "/v1/tokens",
+            &json!({"name": "ro", "scope": "read"}),
+        )
         .await;
     assert_eq!(st, 201, "{t}");
     let reader = Api {
@@ -308,7 +334,11 @@ async fn a_revoked_token_stops_on_every_replica_at_once() {
     }
     let r = api
         .client
-        .delete(format!("{}/v1/tokens/{}", reps[1].0.base, t["id"].as_str().expect("id")))
+        .delete(format!(
+            "{}/v1/tokens/{}",
+            reps[1].0.base,
+            t["id"].as_str().expect("id")
+        ))
         .bearer_auth(&admin)
         .send()
         .await
@@ -318,9 +348,13 @@ async fn a_revoked_token_stops_on_every_replica_at_once() {
         assert_eq!(reader.get(&p.base, "/v1/jobs").await.0, 401);
     }
     // Without a token nothing but health answers.
-    let r = reqwest::get(format!("{}/v1/jobs", reps[0].0.base)).await.expect("get");
+    let r = reqwest::get(format!("{}/v1/jobs", reps[0].0.base))
+        .await
+        .expect("get");
     assert_eq!(r.status(), 401);
-    let r = reqwest::get(format!("{}/readyz", reps[0].0.base)).await.expect("get");
+    let r = reqwest::get(format!("{}/readyz", reps[0].0.base))
+        .await
+        .expect("get");
     assert_eq!(r.status(), 200);
     drop(reps);
     db.drop_db().await;

@@ -11,9 +11,9 @@ use utoipa_axum::routes;
 use super::extract::{ApiPath, ApiQuery};
 use crate::auth::Principal;
 use crate::clock::rfc3339;
+use crate::document_diff::DiffEntry;
 use crate::error::{ApiError, ApiResult, Problem};
 use crate::state::AppState;
-use crate::document_diff::DiffEntry;
 use crate::store::DocumentSummary;
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -198,7 +198,10 @@ pub async fn list_revisions(
                     serde_json::from_str(&d.body).unwrap_or(serde_json::Value::Null);
                 let prov = &body["provenance"];
                 let software = prov["software"]["name"].as_str().map(|n| {
-                    format!("{n} {}", prov["software"]["version"].as_str().unwrap_or("?"))
+                    format!(
+                        "{n} {}",
+                        prov["software"]["version"].as_str().unwrap_or("?")
+                    )
                 });
                 RevisionView {
                     href: format!("/v1/devices/{serial}/documents/{sensor}/{kind}/{}", d.rev),
@@ -307,10 +310,11 @@ pub async fn diff_revisions(
 ) -> ApiResult<axum::Json<RevisionDiff>> {
     for (name, rev) in [("from", q.from), ("to", q.to)] {
         if rev == 0 || rev > i64::MAX as u64 {
-            return Err(
-                ApiError::new("invalid_query", format!("{name} must be a revision, from 1"))
-                    .with_field(name),
-            );
+            return Err(ApiError::new(
+                "invalid_query",
+                format!("{name} must be a revision, from 1"),
+            )
+            .with_field(name));
         }
     }
     let mut docs = Vec::with_capacity(2);

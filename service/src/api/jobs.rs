@@ -103,8 +103,8 @@ pub async fn create_job(
     ApiJson(req): ApiJson<CreateJobRequest>,
 ) -> ApiResult<Response> {
     // Keys are per token: one client's key can neither collide with nor reveal another's job.
-    let key = idempotency_key(&headers)?
-        .map(|k| who.token.map_or(k.clone(), |t| format!("{t}:{k}")));
+    let key =
+        idempotency_key(&headers)?.map(|k| who.token.map_or(k.clone(), |t| format!("{t}:{k}")));
     let kind = resolve_kind(state.config(), &req.kind).ok_or_else(|| {
         let known: Vec<&str> = kinds().iter().map(|k| k.name()).collect();
         ApiError::new(
@@ -404,7 +404,11 @@ pub async fn get_job(
     ApiPath(id): ApiPath<Uuid>,
 ) -> ApiResult<Response> {
     // The cache holds bodies, not owners: device-scoped callers always read the store.
-    let cached = who.devices.is_none().then(|| state.cached_job(&id)).flatten();
+    let cached = who
+        .devices
+        .is_none()
+        .then(|| state.cached_job(&id))
+        .flatten();
     let body = match cached {
         Some(body) => body,
         None => {

@@ -87,7 +87,11 @@ pub async fn create_token(
     State(state): State<AppState>,
     ApiJson(req): ApiJson<CreateTokenRequest>,
 ) -> ApiResult<impl IntoResponse> {
-    let field = if req.devices.is_some() { "devices" } else { "name" };
+    let field = if req.devices.is_some() {
+        "devices"
+    } else {
+        "name"
+    };
     let new = crate::auth::generate(&req.name, req.scope, req.devices, crate::clock::now_ms())
         .map_err(|e| ApiError::new("invalid_body", e.to_string()).with_field(field))?;
     state.store().insert_token(&new.record, &new.hash).await?;
@@ -107,7 +111,9 @@ pub async fn create_token(
 )]
 pub async fn list_tokens(State(state): State<AppState>) -> ApiResult<axum::Json<Vec<TokenView>>> {
     let tokens = state.store().list_tokens().await?;
-    Ok(axum::Json(tokens.into_iter().map(TokenView::from).collect()))
+    Ok(axum::Json(
+        tokens.into_iter().map(TokenView::from).collect(),
+    ))
 }
 
 /// Revoke a token: it stops working at once, on every replica.

@@ -376,8 +376,8 @@ async fn gc_deletes_only_unreferenced_unpinned_blobs() {
 #[tokio::test]
 async fn tokens_are_found_by_hash_listed_and_revoked() {
     let (s, _d) = store().await;
-    let new = crate::auth::generate("ci", Scope::Write, Some(vec!["cam-1".into()]), 5)
-        .expect("token");
+    let new =
+        crate::auth::generate("ci", Scope::Write, Some(vec!["cam-1".into()]), 5).expect("token");
     s.insert_token(&new.record, &new.hash).await.unwrap();
     let found = s.token_by_hash(&new.hash).await.unwrap().expect("found");
     assert_eq!(found, new.record);
@@ -385,7 +385,11 @@ async fn tokens_are_found_by_hash_listed_and_revoked() {
     assert_eq!(s.list_tokens().await.unwrap().len(), 1);
     assert!(s.revoke_token(new.record.id, 9).await.unwrap());
     assert_eq!(
-        s.token_by_hash(&new.hash).await.unwrap().expect("still there").revoked_at,
+        s.token_by_hash(&new.hash)
+            .await
+            .unwrap()
+            .expect("still there")
+            .revoked_at,
         Some(9)
     );
     // Revoking twice keeps the first time.
@@ -411,11 +415,22 @@ async fn datasets_of_device_tokens_are_listed_only_for_their_devices() {
     .await
     .unwrap();
     let ids = |v: Vec<DatasetRecord>| v.into_iter().map(|d| d.id).collect::<Vec<_>>();
-    assert_eq!(ids(s.list_datasets(None, 10, None).await.unwrap()), [mine, fleet]);
+    assert_eq!(
+        ids(s.list_datasets(None, 10, None).await.unwrap()),
+        [mine, fleet]
+    );
     let only = ["cam-2".to_string()];
-    assert_eq!(ids(s.list_datasets(None, 10, Some(&only)).await.unwrap()), [mine]);
+    assert_eq!(
+        ids(s.list_datasets(None, 10, Some(&only)).await.unwrap()),
+        [mine]
+    );
     let other = ["cam-9".to_string()];
-    assert!(s.list_datasets(None, 10, Some(&other)).await.unwrap().is_empty());
+    assert!(
+        s.list_datasets(None, 10, Some(&other))
+            .await
+            .unwrap()
+            .is_empty()
+    );
     assert_eq!(
         s.get_dataset(mine).await.unwrap().expect("there").devices,
         Some(vec!["cam-1".to_string(), "cam-2".to_string()])

@@ -2,7 +2,7 @@
 // revisions (computed by the API: GET …/diff?from=&to=).
 
 import { api, apiBlob } from './api.js';
-import { h, fmt, age, enc, saveBlob } from './dom.js';
+import { h, fmt, age, enc, saveBlob, shortId } from './dom.js';
 import { badge } from './quality.js';
 import { renderDocument } from './result.js';
 
@@ -59,8 +59,8 @@ async function revisionCard(serial, doc, kinds) {
     h('td', { class: 'num' }, h('a', { href: `#/devices/${enc(serial)}/${enc(doc.sensor)}/${enc(doc.kind)}/${r.rev}` }, `r${r.rev}`)),
     h('td', {}, h('time', { datetime: r.created_at, title: r.created_at }, age(r.created_at))),
     h('td', {}, badge(doc.kind, r.quality)),
-    h('td', { class: 'hide-narrow' }, r.job ? h('a', { href: `#/jobs/${r.job}` }, 'job ' + r.job.slice(0, 8)) : '—',
-      r.dataset ? h('div', { class: 'muted' }, 'dataset ' + r.dataset.slice(0, 8)) : null,
+    h('td', { class: 'hide-narrow' }, r.job ? h('a', { href: `#/jobs/${r.job}`, title: r.job }, 'job ' + shortId(r.job)) : '—',
+      r.dataset ? h('div', { class: 'muted', title: r.dataset }, 'dataset ' + shortId(r.dataset)) : null,
       r.software ? h('div', { class: 'muted' }, r.software) : null),
     h('td', {}, pinButton(serial, doc.sensor, doc.kind, r.rev)),
   ));
@@ -89,7 +89,7 @@ export async function devicePage(serial) {
   const node = h('section', {},
     h('p', {}, h('a', { href: '#/fleet' }, '← Fleet')),
     h('h1', {}, 'Device ', h('code', {}, serial)),
-    cards.length ? h('div', { class: 'cards' }, cards) : h('p', {}, 'This device has no documents.'),
+    cards.length ? h('div', { class: 'stack' }, cards) : h('p', {}, 'This device has no documents.'),
   );
   return { node, title: serial };
 }

@@ -75,3 +75,10 @@ export function saveBlob(blob, name) {
   a.remove();
   setTimeout(() => URL.revokeObjectURL(url), 5000);
 }
+
+/** A UUIDv7 for people: its head is a timestamp (shared by ids made together), so keep the
+ * random tail too. */
+export function shortId(id) {
+  const s = String(id || '');
+  return s.length > 16 ? `${s.slice(0, 8)}…${s.slice(-4)}` : s;
+}

@@ -3,7 +3,7 @@
 // pick up jobs other clients queue.
 
 import { api, followJob } from './api.js';
-import { h, age, enc } from './dom.js';
+import { h, age, enc, shortId } from './dom.js';
 import { renderDocument } from './result.js';
 
 const FOLLOW_MAX = 10;
@@ -12,7 +12,8 @@ function progressCell(job) {
   const p = job.progress;
   const pct = p ? Math.round(p.percent) : job.status === 'succeeded' ? 100 : 0;
   const bar = h('progress', { max: 100, value: pct, 'aria-label': `Progress of job ${job.id}` });
-  const text = h('span', { class: 'muted step' }, p ? `${p.step} ${pct} %` : job.status === 'queued' ? 'waiting' : '');
+  const label = job.status === 'succeeded' ? '100 %' : p ? `${p.step} ${pct} %` : job.status === 'queued' ? 'waiting' : '';
+  const text = h('span', { class: 'muted step' }, label);
   return { cell: h('div', { class: 'progress-row' }, bar, text), bar, text };
 }
 
@@ -38,7 +39,7 @@ function jobRow(job, refresh) {
   const status = h('td', {}, statusBadge(job.status));
   const err = job.error ? h('div', { class: 'error-text' }, `${job.error.code}: ${job.error.message}`) : null;
   const row = h('tr', { dataset: { job: job.id, status: job.status } },
-    h('td', {}, h('a', { href: `#/jobs/${job.id}` }, job.id.slice(0, 8)), h('div', { class: 'muted' }, age(job.created_at))),
+    h('td', {}, h('a', { href: `#/jobs/${job.id}`, title: job.id }, shortId(job.id)), h('div', { class: 'muted' }, age(job.created_at))),
     h('td', {}, job.kind, job.device ? h('div', { class: 'muted' }, `${job.device}/${job.sensor || 'default'}`) : null),
     status,
     h('td', {}, prog.cell, err),
@@ -55,6 +56,9 @@ function applyEvent(parts, row, ev) {
   if (ev.status) {
     parts.status.replaceChildren(statusBadge(ev.status));
     row.dataset.status = ev.status;
+    if (ev.status !== 'queued' && ev.status !== 'running') {
+      for (const b of row.querySelectorAll('[data-cancel]')) b.remove();
+    }
     if (ev.status === 'succeeded') {
       parts.prog.bar.value = 100;
       parts.prog.text.textContent = '100 %';
@@ -136,11 +140,11 @@ export async function jobPage(id) {
   }
   const node = h('section', {},
     h('p', {}, h('a', { href: '#/jobs' }, '← Jobs')),
-    h('h1', {}, `Job ${id.slice(0, 8)}`),
+    h('h1', {}, 'Job ', h('code', { title: id }, shortId(id))),
     h('div', { class: 'table-wrap' }, h('table', { id: 'job-table' },
       h('thead', {}, h('tr', {}, ['Job', 'Kind', 'Status', 'Progress', ''].map((t) => h('th', { scope: 'col' }, t)))),
       h('tbody', {}, parts.row))),
     h('details', {}, h('summary', {}, 'Parameters'), h('pre', { class: 'json' }, JSON.stringify(job.params, null, 2))),
     result);
-  return { node, title: `Job ${id.slice(0, 8)}`, cleanup: () => stop && stop() };
+  return { node, title: `Job ${shortId(id)}`, cleanup: () => stop && stop() };
 }

@@ -18,8 +18,8 @@ export async function runPage() {
     h('label', { for: 'run-files' }, 'Choose files'), fileInput, bar, status);
 
   const kindSel = h('select', { id: 'run-kind', required: true });
-  const device = h('input', { id: 'run-device', type: 'text', placeholder: 'e.g. cam-0042', pattern: '[A-Za-z0-9._-]{1,128}' });
-  const sensor = h('input', { id: 'run-sensor', type: 'text', placeholder: 'default', pattern: '[A-Za-z0-9._-]{1,128}' });
+  const device = h('input', { id: 'run-device', type: 'text', placeholder: 'e.g. cam-0042', pattern: '[A-Za-z0-9._\\-]{1,128}' });
+  const sensor = h('input', { id: 'run-sensor', type: 'text', placeholder: 'default', pattern: '[A-Za-z0-9._\\-]{1,128}' });
   const formHolder = h('div', { id: 'run-params' });
   const submit = h('button', { type: 'submit', id: 'run-submit', disabled: true }, 'Queue job');
   const message = h('p', { role: 'status', id: 'run-message' });
@@ -27,7 +27,8 @@ export async function runPage() {
 
   const fillKinds = () => {
     const fit = kinds.filter((k) => !dataset || k.dataset_kind === dataset.kind);
-    kindSel.replaceChildren(...fit.map((k) => h('option', { value: k.name }, `${k.name} — ${k.description}`)));
+    const short = (d) => (d.length > 70 ? `${d.slice(0, 69)}…` : d);
+    kindSel.replaceChildren(...fit.map((k) => h('option', { value: k.name, title: k.description }, `${k.name} — ${short(k.description)}`)));
     return showForm();
   };
   let shown = 0;

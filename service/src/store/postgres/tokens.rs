@@ -58,11 +58,12 @@ impl TokenStore for PgStore {
     }
 
     async fn revoke_token(&self, id: Uuid, now: i64) -> StoreResult<bool> {
-        let r = sqlx::query("UPDATE tokens SET revoked_at = COALESCE(revoked_at, $1) WHERE id = $2")
-            .bind(now)
-            .bind(id.to_string())
-            .execute(&self.pool)
-            .await?;
+        let r =
+            sqlx::query("UPDATE tokens SET revoked_at = COALESCE(revoked_at, $1) WHERE id = $2")
+                .bind(now)
+                .bind(id.to_string())
+                .execute(&self.pool)
+                .await?;
         Ok(r.rows_affected() > 0)
     }
 }

@@ -59,10 +59,10 @@ fn summary_from_row(r: &SqliteRow) -> StoreResult<DocumentSummary> {
 #[async_trait]
 impl DocumentStore for SqliteStore {
     async fn list_documents(&self, device: &str) -> StoreResult<Vec<DocumentSummary>> {
-        let rows = sqlx::query(&format!(
+        let rows = sqlx::query(sqlx::AssertSqlSafe(format!(
             "SELECT {SUMMARY_COLUMNS} FROM documents d WHERE d.device = ? AND {IS_LATEST} \
              ORDER BY d.sensor, d.kind"
-        ))
+        )))
         .bind(device)
         .fetch_all(&self.read)
         .await?;
@@ -72,14 +72,14 @@ impl DocumentStore for SqliteStore {
     async fn list_devices(&self, q: &DeviceQuery) -> StoreResult<Vec<DeviceSummary>> {
         // One page of serials first (index order on the primary key), then the latest revision
         // of each of their documents: the cost is the page's, not the fleet's.
-        let rows = sqlx::query(&format!(
+        let rows = sqlx::query(sqlx::AssertSqlSafe(format!(
             "WITH page AS (SELECT DISTINCT device FROM documents \
                WHERE (?1 IS NULL OR device > ?1) AND (?2 IS NULL OR instr(lower(device), lower(?2)) > 0) \
                AND (?4 IS NULL OR device IN (SELECT value FROM json_each(?4))) \
                ORDER BY device LIMIT ?3) \
              SELECT d.device AS device, {SUMMARY_COLUMNS} FROM documents d JOIN page p ON d.device = p.device \
              WHERE {IS_LATEST} ORDER BY d.device, d.sensor, d.kind"
-        ))
+        )))
         .bind(q.after.as_deref())
         .bind(q.search.as_deref())
         .bind(i64::from(q.limit))

@@ -69,13 +69,11 @@ impl TokenStore for SqliteStore {
     }
 
     async fn revoke_token(&self, id: Uuid, now: i64) -> StoreResult<bool> {
-        let r = sqlx::query(
-            "UPDATE tokens SET revoked_at = COALESCE(revoked_at, ?) WHERE id = ?",
-        )
-        .bind(now)
-        .bind(id.to_string())
-        .execute(&self.write)
-        .await?;
+        let r = sqlx::query("UPDATE tokens SET revoked_at = COALESCE(revoked_at, ?) WHERE id = ?")
+            .bind(now)
+            .bind(id.to_string())
+            .execute(&self.write)
+            .await?;
         Ok(r.rows_affected() > 0)
     }
 }
