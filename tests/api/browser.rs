@@ -383,6 +383,30 @@ async fn dashboard_runs_a_calibration_end_to_end() {
     )
     .await;
 
+    // A phone-sized screen: every page fits its width (tables scroll inside their box).
+    c.set_window_size(390, 844).await.expect("phone size");
+    for page in [
+        "#/fleet",
+        "#/devices/cam-ui",
+        "#/devices/cam-ui/cam0/camera_calibration/2",
+        "#/jobs",
+        "#/run",
+    ] {
+        c.goto(&s.url(&format!("/ui/{page}"))).await.expect("page");
+        wait_js(&c, "document.querySelector('main h1') && !document.querySelector('main p.muted:only-child')", Duration::from_secs(10)).await;
+        let fits = c
+            .execute(
+                "return document.documentElement.scrollWidth <= window.innerWidth + 1;",
+                vec![],
+            )
+            .await
+            .expect("width");
+        assert_eq!(fits, json!(true), "{page} is wider than a phone screen");
+        if page == "#/devices/cam-ui" {
+            screenshot(&c, "phone-device").await;
+        }
+    }
+
     let errors = console_errors(&c).await;
     assert!(errors.is_empty(), "console errors: {errors:?}");
     c.close().await.expect("close");

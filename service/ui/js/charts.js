@@ -46,7 +46,9 @@ export function residualPlot({ width, height, residuals, scale = 50, title }) {
     const [x, y] = r.observed || r.pixel || [NaN, NaN];
     const [dx, dy] = r.residual || [0, 0];
     if (!Number.isFinite(x) || !Number.isFinite(y)) continue;
-    svg.append(s('line', { x1: x * k, y1: y * k, x2: (x + dx * scale) * k, y2: (y + dy * scale) * k, stroke: r.inlier === false ? '#b3261e' : '#0b57d0', 'stroke-width': 1 }));
+    const color = r.inlier === false ? '#b3261e' : '#0b57d0';
+    svg.append(s('circle', { cx: x * k, cy: y * k, r: 1.5, fill: color, 'fill-opacity': 0.5 }));
+    svg.append(s('line', { x1: x * k, y1: y * k, x2: (x + dx * scale) * k, y2: (y + dy * scale) * k, stroke: color, 'stroke-width': 1.2 }));
   }
   return h('figure', { class: 'chart' }, h('figcaption', {}, `${title} (vectors ×${scale})`), svg);
 }
