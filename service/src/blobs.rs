@@ -23,6 +23,8 @@ pub enum BlobError {
     Store(#[from] object_store::Error),
     #[error("blob i/o: {0}")]
     Io(#[from] std::io::Error),
+    #[error("blob store configuration: {0}")]
+    Config(String),
 }
 
 /// Blobs keyed by their hex SHA-256.
@@ -51,6 +53,33 @@ impl Blobs {
     }
 
     /// Blobs in any object store (S3, in-memory for tests).
+    /// Blobs in an S3 bucket: `s3://bucket` or `s3://bucket/prefix`. Endpoint, region,
+    /// credentials and `AWS_ALLOW_HTTP` come from the standard `AWS_*` variables (an
+    /// S3-compatible server: `AWS_ENDPOINT=http://host:port`, `AWS_ALLOW_HTTP=true`); requests
+    /// are path-style, which every S3-compatible server accepts.
+    pub fn s3(url: &str) -> Result<Self, BlobError> {
+        // TLS on ring; installing twice is harmless (the first provider stays).
+        let _ = rustls::crypto::ring::default_provider().install_default();
+        let rest = url
+            .strip_prefix("s3://")
+            .ok_or_else(|| BlobError::Config(format!("{url:?} is not an s3:// URL")))?;
+        let (bucket, prefix) = rest.split_once('/').unwrap_or((rest, ""));
+        if bucket.is_empty() {
+            return Err(BlobError::Config(format!("{url:?} names no bucket")));
+        }
+        let s3 = object_store::aws::AmazonS3Builder::from_env()
+            .with_bucket_name(bucket)
+            .with_virtual_hosted_style_request(false)
+            .build()?;
+        let prefix = prefix.trim_matches('/');
+        let store: Arc<dyn ObjectStore> = if prefix.is_empty() {
+            Arc::new(s3)
+        } else {
+            Arc::new(object_store::prefix::PrefixStore::new(s3, prefix))
+        };
+        Ok(Self::new(store))
+    }
+
     pub fn new(store: Arc<dyn ObjectStore>) -> Self {
         Self {
             store,

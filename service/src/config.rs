@@ -185,6 +185,10 @@ settings! {
     /// PostgreSQL share it (a network file system), as they would share an S3 bucket.
     blob_dir: String = String::new(),
         env "CALIPER_BLOB_DIR", help "Directory of the blobs; default: DATA_DIR/blobs.";
+    /// Blobs in S3 or an S3-compatible server: `s3://bucket/prefix` (endpoint, region and
+    /// credentials from the `AWS_*` variables); overrides `blob_dir`.
+    blob_url: String = String::new(),
+        env "CALIPER_BLOB_URL", help "s3://bucket/prefix for blobs in S3 (AWS_* variables give endpoint and credentials); default: local files.";
     /// Requests per second each token may make on average (0: no limit); over it, 429 with
     /// `Retry-After`. Applies when tokens are required.
     rate_limit_per_sec: u32 = 100,
@@ -287,6 +291,9 @@ impl Config {
         }
         if self.rate_limit_per_sec > 0 && self.rate_limit_burst == 0 {
             return bad("rate_limit_burst must be at least 1 when rate_limit_per_sec is set");
+        }
+        if !(self.blob_url.is_empty() || self.blob_url.starts_with("s3://")) {
+            return bad("blob_url must be an s3://bucket/prefix URL");
         }
         let url = &self.database_url;
         if !(url.is_empty() || url.starts_with("postgres://") || url.starts_with("postgresql://")) {

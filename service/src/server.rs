@@ -91,7 +91,11 @@ pub async fn open_state(config: Config) -> Result<(AppState, Option<File>), Star
         store.clear_pins(crate::clock::now_ms()).await?;
         Some(lock)
     };
-    let blobs = Blobs::local(&config.blob_path())?;
+    let blobs = if config.blob_url.is_empty() {
+        Blobs::local(&config.blob_path())?
+    } else {
+        Blobs::s3(&config.blob_url)?
+    };
     let state = AppState::new(config, store, blobs, metrics_handle());
     Ok((state, lock))
 }

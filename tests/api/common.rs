@@ -267,6 +267,16 @@ impl Drop for Proc {
 /// Start `bin serve` on `data` with one worker, fast heartbeats and `extra` flags; returns once
 /// it listens.
 pub fn spawn_caliper(bin: &std::path::Path, data: &std::path::Path, extra: &[&str]) -> Proc {
+    spawn_caliper_env(bin, data, extra, &[])
+}
+
+/// [`spawn_caliper`] with extra environment variables (e.g. `AWS_*` for S3 blobs).
+pub fn spawn_caliper_env(
+    bin: &std::path::Path,
+    data: &std::path::Path,
+    extra: &[&str],
+    env: &[(&str, &str)],
+) -> Proc {
     use std::io::BufRead;
     let mut child = Command::new(bin)
         .args([
@@ -282,6 +292,7 @@ pub fn spawn_caliper(bin: &std::path::Path, data: &std::path::Path, extra: &[&st
         .arg("--data-dir")
         .arg(data)
         .env("RUST_LOG", "warn")
+        .envs(env.iter().copied())
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::inherit())
         .spawn()

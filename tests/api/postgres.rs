@@ -92,20 +92,41 @@ fn admin_token(url: &str) -> String {
 }
 
 fn replica(db: &TestDb, blobs: &std::path::Path, extra: &[&str]) -> (Proc, tempfile::TempDir) {
+    replica_s3(db, blobs, None, extra)
+}
+
+/// A replica whose blobs go to S3 (`s3`: URL and endpoint) or to the shared directory.
+fn replica_s3(
+    db: &TestDb,
+    blobs: &std::path::Path,
+    s3: Option<(&str, &str)>,
+    extra: &[&str],
+) -> (Proc, tempfile::TempDir) {
     let data = tempfile::tempdir().expect("data dir");
     let blob_dir = blobs.to_string_lossy().into_owned();
+    let (flag, target) = match s3 {
+        Some((url, _)) => ("--blob-url", url.to_owned()),
+        None => ("--blob-dir", blob_dir),
+    };
+    let env = s3
+        .map(|(_, endpoint)| crate::s3::aws_env(endpoint))
+        .unwrap_or_default();
+    let env_refs: Vec<(&str, &str)> = env.iter().map(|(k, v)| (*k, v.as_str())).collect();
     let mut args = vec![
         "--database-url",
         db.url.as_str(),
-        "--blob-dir",
-        blob_dir.as_str(),
+        flag,
+        target.as_str(),
         "--lease-secs",
         "3",
         "--rate-limit-per-sec",
         "0",
     ];
     args.extend_from_slice(extra);
-    (spawn_caliper(&caliper_bin(), data.path(), &args), data)
+    (
+        spawn_caliper_env(&caliper_bin(), data.path(), &args, &env_refs),
+        data,
+    )
 }
 
 struct Api {
@@ -184,7 +205,16 @@ async fn three_replicas_share_one_store_and_run_each_job_once() {
     };
     let blobs = tempfile::tempdir().expect("blobs");
     let token = admin_token(&db.url);
-    let reps: Vec<_> = (0..3).map(|_| replica(&db, blobs.path(), &[])).collect();
+    // Blobs in S3 when the tests have an S3-compatible server, else in a shared directory.
+    let s3 = crate::s3::bucket().await;
+    let s3_url = s3.as_ref().map(|(_, b)| format!("s3://{b}/replicas"));
+    let target = s3
+        .as_ref()
+        .zip(s3_url.as_deref())
+        .map(|((endpoint, _), url)| (url, endpoint.as_str()));
+    let reps: Vec<_> = (0..3)
+        .map(|_| replica_s3(&db, blobs.path(), target, &[]))
+        .collect();
     let bases: Vec<String> = reps.iter().map(|(p, _)| p.base.clone()).collect();
     let api = Api {
         client: reqwest::Client::new(),
@@ -235,7 +265,35 @@ async fn three_replicas_share_one_store_and_run_each_job_once() {
         .await
         .expect("count");
     assert_eq!(attempts, n as i64, "one attempt per job");
-    eprintln!("{n} jobs ran on {workers} workers across 3 replicas");
+    eprintln!(
+        "{n} jobs ran on {workers} workers across 3 replicas (blobs in {})",
+        if s3.is_some() {
+            "S3"
+        } else {
+            "a shared directory"
+        }
+    );
+    // Every artifact of every job can be read from any replica (shared blobs).
+    for (i, id) in ids.iter().enumerate().take(5) {
+        let (_, arts) = api
+            .get(&bases[i % 3], &format!("/v1/jobs/{id}/artifacts"))
+            .await;
+        let name = arts["items"][0]["name"]
+            .as_str()
+            .expect("artifact")
+            .to_owned();
+        let r = api
+            .client
+            .get(format!(
+                "{}/v1/jobs/{id}/artifacts/{name}",
+                bases[(i + 1) % 3]
+            ))
+            .bearer_auth(&api.token)
+            .send()
+            .await
+            .expect("artifact");
+        assert_eq!(r.status(), 200);
+    }
     drop(reps);
     db.drop_db().await;
 }
