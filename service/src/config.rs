@@ -329,8 +329,7 @@ impl Config {
     /// `insecure_no_auth`.
     pub fn auth_required(&self) -> bool {
         self.auth
-            || self.shared_store()
-            || (!self.listen.ip().is_loopback() && !self.insecure_no_auth)
+            || (!self.insecure_no_auth && (self.shared_store() || !self.listen.ip().is_loopback()))
     }
 
     /// A store shared with other replicas (PostgreSQL)?

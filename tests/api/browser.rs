@@ -5,6 +5,7 @@
 //! each page there (the README's screenshots come from `tests/screenshots`).
 
 use std::path::{Path, PathBuf};
+
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -422,7 +423,7 @@ async fn fleet_of_ten_thousand_devices_pages() {
         return;
     };
     let s = start().await;
-    seed_devices(&s.dir.path().join("data").join("caliper.db"), 10_000).await;
+    seed_devices(&s, 10_000).await;
     let driver = start_driver(&driver_bin).await;
     let downloads = tempfile::tempdir().expect("downloads");
     let c = browser(&driver, downloads.path()).await;
@@ -479,95 +480,60 @@ async fn fleet_of_ten_thousand_devices_pages() {
     s.stop().await;
 }
 
-/// Write `n` devices with two documents each straight into the SQLite store (running jobs
-/// for 10,000 devices would take minutes and test nothing more).
-async fn seed_devices(db: &Path, n: usize) {
+/// Write `n` devices with two documents each straight into the store's database (running
+/// jobs for 10,000 devices would take minutes and test nothing more).
+async fn seed_devices(s: &TestServer, n: usize) {
     use sqlx::Connection;
-    let mut conn = sqlx::SqliteConnection::connect(&format!("sqlite://{}", db.display()))
-        .await
-        .expect("open store");
-    let mut tx = conn.begin().await.expect("tx");
-    for i in 0..n {
+    let rows = (0..n).flat_map(|i| {
         let serial = format!("dev-{i:05}");
-        for (sensor, kind, quality) in [
-            (
-                "cam0",
-                "camera_calibration",
-                json!({"rms": 0.2 + (i % 7) as f64 * 0.1, "coverage": 0.7}),
-            ),
+        [
+            ("cam0", "camera_calibration", json!({"rms": 0.2 + (i % 7) as f64 * 0.1, "coverage": 0.7})),
             ("imu0", "imu_noise", json!({"warnings": i % 3})),
-        ] {
+        ]
+        .map(|(sensor, kind, quality)| {
             let body = json!({"schema": "seed", "kind": kind, "device": serial, "sensor": sensor,
                               "quality": quality, "parameters": {}});
+            (serial.clone(), sensor, kind, format!("e{i}"), body.to_string())
+        })
+    });
+    if let Some(db) = &s.db {
+        let mut conn = sqlx::PgConnection::connect(&db.url).await.expect("open store");
+        let mut tx = conn.begin().await.expect("tx");
+        for (serial, sensor, kind, etag, body) in rows {
             sqlx::query(
                 "INSERT INTO documents (device, sensor, kind, rev, etag, schema, created_at, job_id, body) \
-                 VALUES (?, ?, ?, 1, ?, 'seed', 1764547200000, NULL, ?)",
+                 VALUES ($1, $2, $3, 1, $4, 'seed', 1764547200000, NULL, $5)",
             )
-            .bind(&serial)
+            .bind(serial)
             .bind(sensor)
             .bind(kind)
-            .bind(format!("e{i}"))
-            .bind(body.to_string())
+            .bind(etag)
+            .bind(body)
             .execute(&mut *tx)
             .await
             .expect("insert");
         }
+        tx.commit().await.expect("commit");
+        return;
+    }
+    let path = s.dir.path().join("data").join("caliper.db");
+    let mut conn = sqlx::SqliteConnection::connect(&format!("sqlite://{}", path.display()))
+        .await
+        .expect("open store");
+    let mut tx = conn.begin().await.expect("tx");
+    for (serial, sensor, kind, etag, body) in rows {
+        sqlx::query(
+            "INSERT INTO documents (device, sensor, kind, rev, etag, schema, created_at, job_id, body) \
+             VALUES (?, ?, ?, 1, ?, 'seed', 1764547200000, NULL, ?)",
+        )
+        .bind(serial)
+        .bind(sensor)
+        .bind(kind)
+        .bind(etag)
+        .bind(body)
+        .execute(&mut *tx)
+        .await
+        .expect("insert");
     }
     tx.commit().await.expect("commit");
-}
-
-/// With tokens on, the page asks for one, keeps it for the tab, and shows what it may see.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn dashboard_asks_for_a_token_when_the_server_needs_one() {
-    let Some(driver_bin) = driver_path() else {
-        return;
-    };
-    let s = start_with(|c| c.auth = true).await;
-    let state = &s.server.as_ref().expect("running").state;
-    let new = caliper_service::auth::generate(
-        "cam-7 reader",
-        caliper_service::store::Scope::Read,
-        Some(vec!["cam-7".into()]),
-        0,
-    )
-    .expect("token");
-    state
-        .store()
-        .insert_token(&new.record, &new.hash)
-        .await
-        .expect("stored");
-    seed_devices(&s.dir.path().join("data").join("caliper.db"), 10).await;
-    let driver = start_driver(&driver_bin).await;
-    let downloads = tempfile::tempdir().expect("downloads");
-    let c = browser(&driver, downloads.path()).await;
-    c.goto(&s.url("/ui/#/fleet")).await.expect("fleet");
-    wait_js(
-        &c,
-        "document.getElementById('token-dialog').open",
-        Duration::from_secs(10),
-    )
-    .await;
-    wait_css(&c, "#token-input")
-        .await
-        .send_keys(&new.secret)
-        .await
-        .expect("type token");
-    wait_css(&c, "#token-form button[value='save']")
-        .await
-        .click()
-        .await
-        .expect("save");
-    wait_js(
-        &c,
-        "document.getElementById('fleet-count') && document.getElementById('fleet-count').textContent === '0 devices'",
-        Duration::from_secs(10),
-    )
-    .await;
-    let stored = c
-        .execute("return sessionStorage.getItem('caliper.token');", vec![])
-        .await
-        .expect("session storage");
-    assert_eq!(stored.as_str(), Some(new.secret.as_str()));
-    c.close().await.expect("close");
-    s.stop().await;
 }

@@ -17,6 +17,15 @@ pub struct TestServer {
     pub client: reqwest::Client,
     pub server: Option<Server>,
     pub dir: tempfile::TempDir,
+    /// The PostgreSQL database of this server (production profile runs).
+    pub db: Option<crate::postgres::TestDb>,
+}
+
+/// Whether this run exercises the production profile: `CALIPER_TEST_PROFILE=postgres` runs
+/// every in-process server of the suite on its own fresh PostgreSQL database (from
+/// `CALIPER_TEST_POSTGRES_URL`) instead of SQLite, so the same black-box tests cover both.
+pub fn postgres_profile() -> bool {
+    std::env::var("CALIPER_TEST_PROFILE").is_ok_and(|p| p == "postgres")
 }
 
 /// A server with fast heartbeats, on a fresh data directory.
@@ -38,6 +47,17 @@ pub async fn start_with(tweak: impl FnOnce(&mut Config)) -> TestServer {
         blob_gc_grace_secs: 0,
         ..Config::default()
     };
+    let db = if postgres_profile() {
+        let db = crate::postgres::TestDb::create()
+            .await
+            .expect("CALIPER_TEST_PROFILE=postgres needs CALIPER_TEST_POSTGRES_URL");
+        cfg.database_url = db.url.clone();
+        // The suite's open requests stay open; tests that want tokens set `auth`.
+        cfg.insecure_no_auth = true;
+        Some(db)
+    } else {
+        None
+    };
     tweak(&mut cfg);
     let server = caliper_service::server::start(cfg)
         .await
@@ -52,6 +72,7 @@ pub async fn start_with(tweak: impl FnOnce(&mut Config)) -> TestServer {
             .expect("client"),
         server: Some(server),
         dir,
+        db,
     }
 }
 
@@ -155,6 +176,9 @@ impl TestServer {
     pub async fn stop(mut self) {
         if let Some(s) = self.server.take() {
             s.shutdown(Duration::from_secs(5)).await;
+        }
+        if let Some(db) = self.db.take() {
+            db.drop_db().await;
         }
     }
 }

@@ -18,6 +18,7 @@ mod imu;
 mod jobs;
 mod offline;
 mod openapi;
+mod overload;
 mod photometric;
 mod postgres;
 mod readme;
