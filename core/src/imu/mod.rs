@@ -30,9 +30,9 @@ pub use allan::{ImuNoiseParams, ImuNoiseReport, imu_noise, imu_noise_from_log};
 pub use log::{
     AccelUnit, GyroUnit, ImuColumns, ImuCsvParams, ImuLog, ParseStats, TimeUnit, read_imu_log,
 };
+pub use motion::{MotionPolicy, StaticAnalysis, detect_motion};
 pub use multipos::{
     ImuIntrinsicsParams, ImuIntrinsicsReport, imu_intrinsics, imu_intrinsics_from_log,
 };
-pub use motion::{MotionPolicy, StaticAnalysis, detect_motion};
 pub use plot::{allan_svg, thermal_svg};
 pub use thermal::{ImuThermalParams, ImuThermalReport, imu_thermal, imu_thermal_from_log};

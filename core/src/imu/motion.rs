@@ -187,9 +187,7 @@ pub fn detect_motion(
             stds.iter().sum::<f64>() / nw as f64
         };
         let mut ratios: Vec<f64> = stats.iter().map(|s| ratio(s.std[c], s.dstd[c])).collect();
-        let p10 = *ratios
-            .select_nth_unstable_by(nw / 10, f64::total_cmp)
-            .1;
+        let p10 = *ratios.select_nth_unstable_by(nw / 10, f64::total_cmp).1;
         ratio_limit[c] = RATIO_MIN.max((2.0 * p10).min(RATIO_CAP));
     }
 

@@ -155,7 +155,10 @@ fn rotation_in_the_middle_is_refused_with_its_interval() {
     assert_eq!(sc.moving_runs.len(), 1, "{:?}", sc.moving_runs);
     let (a, b) = secs(sc.moving_runs[0], rate);
     // Within one window (1 s) of the truth at both ends.
-    assert!((a - mv.t0).abs() <= 1.0 && (b - mv.t1).abs() <= 1.0, "{a}–{b}");
+    assert!(
+        (a - mv.t0).abs() <= 1.0 && (b - mv.t1).abs() <= 1.0,
+        "{a}–{b}"
+    );
     let err = imu_noise(csv.as_bytes(), &ImuNoiseParams::default(), &NoProgress)
         .expect_err("a moving log is refused");
     let CoreError::InvalidInput(msg) = err else {
@@ -262,10 +265,18 @@ fn longest_static_analyses_the_right_stretch_and_recovers_n() {
     };
     let r = imu_noise(csv.as_bytes(), &params, &NoProgress).expect("longest static stretch");
     let sa = &r.static_analysis;
-    assert_eq!(sa.moving_intervals_s.len(), 2, "{:?}", sa.moving_intervals_s);
+    assert_eq!(
+        sa.moving_intervals_s.len(),
+        2,
+        "{:?}",
+        sa.moving_intervals_s
+    );
     let [a, b] = sa.used_interval_s;
     // 52–250 s minus up to one guard window (plus the window the movement ends in) per side.
-    assert!(a >= 52.0 && a <= 54.0 && b <= 250.0 && b >= 248.0, "{a}–{b}");
+    assert!(
+        a >= 52.0 && a <= 54.0 && b <= 250.0 && b >= 248.0,
+        "{a}–{b}"
+    );
     assert_eq!(r.samples, sa.used_samples);
     assert!((r.duration_s - (b - a)).abs() < 0.01);
     assert!(r.warnings.iter().any(|w| w.contains("longest static")));
@@ -297,7 +308,12 @@ fn longest_static_analyses_the_right_stretch_and_recovers_n() {
 
 #[test]
 fn motion_params_are_validated() {
-    for (w, k) in [(0.0, 3.0), (f64::NAN, 3.0), (1.0, 1.0), (1.0, f64::INFINITY)] {
+    for (w, k) in [
+        (0.0, 3.0),
+        (f64::NAN, 3.0),
+        (1.0, 1.0),
+        (1.0, f64::INFINITY),
+    ] {
         let p = ImuNoiseParams {
             motion_window_s: w,
             motion_k: k,
@@ -339,5 +355,8 @@ fn shared_logs_static_pass_multipos_refused() {
     };
     println!("multipos_100hz: {msg}");
     // Truth: the first rest ends at sample 4999 (50 s): the first motion starts there.
-    assert!(msg.contains("moving 49.") || msg.contains("moving 50."), "{msg}");
+    assert!(
+        msg.contains("moving 49.") || msg.contains("moving 50."),
+        "{msg}"
+    );
 }

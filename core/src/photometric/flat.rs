@@ -98,7 +98,10 @@ impl VignettingParams {
             return Err(CoreError::param("knots", "must be in 4..=64"));
         }
         if !(self.circle_fraction >= 0.0 && self.circle_fraction <= 0.5) {
-            return Err(CoreError::param("circle_fraction", "must be within 0..=0.5"));
+            return Err(CoreError::param(
+                "circle_fraction",
+                "must be within 0..=0.5",
+            ));
         }
         if !(self.smoothing >= 0.0 && self.smoothing <= 1.0) {
             return Err(CoreError::param("smoothing", "must be within 0..=1"));
@@ -166,16 +169,22 @@ pub fn vignetting(
     match (poly, spline) {
         (Ok(mut p), Ok(sp)) => {
             let mask = sp.vignette.mask_radius.map(|m| (sp.vignette.clone(), m));
-            let prms = v_rms(images, inverse, params, &p.vignette, &p.scales, mask.as_ref());
+            let prms = v_rms(
+                images,
+                inverse,
+                params,
+                &p.vignette,
+                &p.scales,
+                mask.as_ref(),
+            );
             let srms = sp.spline_rms.unwrap_or(f64::INFINITY);
             // The spline has ~8× the parameters, so it always fits a little better; keep the
             // polynomial unless the gain is clearly more than noise.
             if prms <= 1.2 * srms + 0.002 {
                 p.polynomial_rms = Some(prms);
                 p.spline_rms = Some(srms);
-                p.model_choice = format!(
-                    "auto: polynomial (RMS {prms:.4} ≤ 1.2 × spline {srms:.4} + 0.002)"
-                );
+                p.model_choice =
+                    format!("auto: polynomial (RMS {prms:.4} ≤ 1.2 × spline {srms:.4} + 0.002)");
                 Ok(p)
             } else {
                 let mut sp = sp;
@@ -225,7 +234,11 @@ fn v_rms(
             }
         }
     }
-    if n > 0 { (ss / n as f64).sqrt() } else { f64::INFINITY }
+    if n > 0 {
+        (ss / n as f64).sqrt()
+    } else {
+        f64::INFINITY
+    }
 }
 
 /// The spline model as a [`VignettingResult`].

@@ -54,7 +54,11 @@ impl RadialSpline {
         }
         if self.knots[0] != 0.0
             || self.knots.windows(2).any(|w| !(w[1] > w[0]))
-            || self.knots.iter().chain(&self.values).any(|v| !v.is_finite())
+            || self
+                .knots
+                .iter()
+                .chain(&self.values)
+                .any(|v| !v.is_finite())
         {
             return Err(CoreError::param(
                 "vignette.spline",
@@ -163,10 +167,15 @@ fn bin_flats(
     progress: &dyn Progress,
 ) -> CoreResult<Bins> {
     let (w, h) = (images[0].width, images[0].height);
-    let dmax = [(0.0, 0.0), (w as f64, 0.0), (0.0, h as f64), (w as f64, h as f64)]
-        .iter()
-        .map(|&(x, y)| (x - center[0]).hypot(y - center[1]))
-        .fold(0.0, f64::max);
+    let dmax = [
+        (0.0, 0.0),
+        (w as f64, 0.0),
+        (0.0, h as f64),
+        (w as f64, h as f64),
+    ]
+    .iter()
+    .map(|&(x, y)| (x - center[0]).hypot(y - center[1]))
+    .fold(0.0, f64::max);
     let nb = dmax.ceil() as usize + 2;
     let nj = images.len();
     let mut b = Bins {
@@ -249,7 +258,10 @@ pub(crate) fn fit_spline(
     let mut p = vec![1.0; nb];
     let mut s: Vec<f64> = (0..nj)
         .map(|j| {
-            let (a, n) = (bins.sum[j].iter().sum::<f64>(), bins.cnt[j].iter().sum::<f64>());
+            let (a, n) = (
+                bins.sum[j].iter().sum::<f64>(),
+                bins.cnt[j].iter().sum::<f64>(),
+            );
             if n > 0.0 { a / n } else { 1.0 }
         })
         .collect();
@@ -376,7 +388,9 @@ pub(crate) fn fit_spline(
     }
     let k = knots.len();
     if k < 3 {
-        return Err(CoreError::input("flat fields too small for the spline model"));
+        return Err(CoreError::input(
+            "flat fields too small for the spline model",
+        ));
     }
 
     // Pass 3: alternating weighted least squares for the values and the scales.
@@ -461,10 +475,7 @@ pub(crate) fn fit_spline(
         }
     }
     Ok(SplineFit {
-        spline: RadialSpline {
-            knots,
-            values: c,
-        },
+        spline: RadialSpline { knots, values: c },
         mask_r,
         scales: s,
     })

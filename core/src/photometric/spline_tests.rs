@@ -6,13 +6,18 @@
 
 use super::synth::Rng;
 use super::{
-    InverseResponse, PhotoImage, VignetteKind, VignetteModel, VignettingParams, correct,
-    vignetting,
+    InverseResponse, PhotoImage, VignetteKind, VignetteModel, VignettingParams, correct, vignetting,
 };
 use crate::progress::NoProgress;
 
 /// Flats of a linear camera: `round(255 · clip(level · V + n))`, σ² = 2e-4 I + 1.5e-3².
-fn render(w: usize, h: usize, v: &dyn Fn(f64, f64) -> f64, levels: &[f64], seed: u64) -> Vec<PhotoImage> {
+fn render(
+    w: usize,
+    h: usize,
+    v: &dyn Fn(f64, f64) -> f64,
+    levels: &[f64],
+    seed: u64,
+) -> Vec<PhotoImage> {
     let mut rng = Rng::new(seed);
     levels
         .iter()
@@ -76,7 +81,10 @@ fn map_rmse(m: &VignetteModel, truth: &dyn Fn(f64, f64) -> f64, inside: f64) -> 
             }
         }
     }
-    ((ss / n.max(1) as f64).sqrt(), masked as f64 / n.max(1) as f64)
+    (
+        (ss / n.max(1) as f64).sqrt(),
+        masked as f64 / n.max(1) as f64,
+    )
 }
 
 const LEVELS: [f64; 3] = [0.45, 0.7, 0.95];
@@ -99,7 +107,12 @@ fn standard_camera_keeps_the_polynomial_unchanged() {
         ..VignettingParams::default()
     };
     let poly = vignetting(&flats, &inv, &poly_only, &NoProgress).expect("polynomial");
-    assert_eq!(auto.model, VignetteKind::Polynomial, "{}", auto.model_choice);
+    assert_eq!(
+        auto.model,
+        VignetteKind::Polynomial,
+        "{}",
+        auto.model_choice
+    );
     // Bit for bit the polynomial fit: same coefficients, scales, RMS, no mask, no spline.
     assert_eq!(auto.vignette, poly.vignette);
     assert_eq!(auto.scales, poly.scales);
@@ -154,7 +167,10 @@ fn fisheye_case(name: &str, truth: &dyn Fn(f64, f64) -> f64, seed: u64, fit_cent
         r.mask_radius_px,
         r.vignette.center,
         100.0 * masked,
-        poly_rmse.map_or_else(|| format!("{:?}", poly.err()), |v| format!("map RMSE {v:.4}")),
+        poly_rmse.map_or_else(
+            || format!("{:?}", poly.err()),
+            |v| format!("map RMSE {v:.4}")
+        ),
     );
     assert!(masked < 0.01, "{name}: {masked} of the circle masked");
     rmse
@@ -196,7 +212,9 @@ fn spline_model_writes_a_masked_dso_map_and_corrects() {
     assert!((mask - edge).abs() < 4.0, "mask radius {mask} vs {edge}");
     // vignette.png: 0 outside the circle, the maximum inside.
     let png = super::dso::write_vignette_png(m).expect("png");
-    let img = image::load_from_memory(&png).expect("decodes").into_luma16();
+    let img = image::load_from_memory(&png)
+        .expect("decodes")
+        .into_luma16();
     assert_eq!(img.get_pixel(0, 0)[0], 0);
     assert!(img.get_pixel(256, 256)[0] > 60_000);
     // Correction: masked pixels are 0, not infinite; inside, the flat becomes flat.
@@ -205,8 +223,13 @@ fn spline_model_writes_a_masked_dso_map_and_corrects() {
         inverse_256: inv.values.clone(),
         vignette: Some(m.clone()),
     };
-    let out = correct(&flats[1], &model, &super::CorrectParams::default(), &NoProgress)
-        .expect("correct");
+    let out = correct(
+        &flats[1],
+        &model,
+        &super::CorrectParams::default(),
+        &NoProgress,
+    )
+    .expect("correct");
     assert!(out.data.iter().all(|v| v.is_finite()));
     assert_eq!(out.data[0], 0.0);
     let c = out.data[256 * 512 + 256];

@@ -143,8 +143,7 @@ impl VignetteModel {
     /// Whether pixel `(x, y)` lies outside the image circle (masked, V = 0).
     #[inline]
     pub fn masked(&self, x: f64, y: f64) -> bool {
-        self.mask_radius
-            .is_some_and(|m| self.r2(x, y) > m * m)
+        self.mask_radius.is_some_and(|m| self.r2(x, y) > m * m)
     }
 
     /// `V` at pixel `(x, y)`.

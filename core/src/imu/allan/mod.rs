@@ -108,7 +108,12 @@ pub fn imu_noise_from_log(
     let mut x = PhaseBuffer::default();
     let mut sums: Vec<Vec<f64>> = Vec::with_capacity(6);
     for c in 0..6 {
-        sums.push(oavar_sums(&log.channel_offsets(c)[lo..hi], &ms, &mut x, progress)?);
+        sums.push(oavar_sums(
+            &log.channel_offsets(c)[lo..hi],
+            &ms,
+            &mut x,
+            progress,
+        )?);
         progress.report("allan", c as u64 + 1, 6);
     }
     drop(x);

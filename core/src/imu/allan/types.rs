@@ -89,7 +89,10 @@ impl ImuNoiseParams {
             return Err(CoreError::param("confidence", "must be within (0, 1)"));
         }
         if !(self.motion_window_s.is_finite() && (0.05..=600.0).contains(&self.motion_window_s)) {
-            return Err(CoreError::param("motion_window_s", "must be within 0.05..=600 s"));
+            return Err(CoreError::param(
+                "motion_window_s",
+                "must be within 0.05..=600 s",
+            ));
         }
         if !(self.motion_k.is_finite() && (1.5..=1000.0).contains(&self.motion_k)) {
             return Err(CoreError::param("motion_k", "must be within 1.5..=1000"));
