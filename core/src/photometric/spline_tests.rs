@@ -265,3 +265,49 @@ fn spline_params_are_validated() {
         assert!(p.validate().is_err());
     }
 }
+
+/// Evaluation sweep (not run by default: ~1 min): both fisheye families over several seeds and
+/// shapes, printing the dense-map RMSE inside the circle. `cargo test -p caliper-core
+/// fisheye_sweep -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn fisheye_sweep() {
+    let inv = InverseResponse::linear(256);
+    let mut worst = [0.0f64; 2];
+    for seed in 0..4u64 {
+        let s = seed as f64;
+        let a = fisheye_a(256.0 + s, 256.0 - s, 315.0 + 6.0 * s, 6.0 + 3.0 * s);
+        let b = fisheye_b(
+            256.0 - 2.0 * s,
+            256.0 + s,
+            0.25 + 0.07 * s,
+            190.0 + 20.0 * s,
+            290.0 + 15.0 * s,
+        );
+        for (fam, truth) in [(0usize, &a as &dyn Fn(f64, f64) -> f64), (1, &b)] {
+            let flats = render(512, 512, truth, &LEVELS, 100 + seed);
+            let p = VignettingParams {
+                fit_center: true,
+                ..VignettingParams::default()
+            };
+            let Ok(r) = vignetting(&flats, &inv, &p, &NoProgress) else {
+                println!("family {fam} seed {seed}: fit failed");
+                worst[fam] = f64::INFINITY;
+                continue;
+            };
+            let (rmse, masked) = map_rmse(&r.vignette, truth, 0.05);
+            println!(
+                "family {} seed {seed}: {:?}, centre {:.1?}, mask {:.1?} px, RMSE {rmse:.5}, \
+                 masked {:.3} %",
+                ["A (tuning)", "B (held-out)"][fam],
+                r.model,
+                r.vignette.center,
+                r.mask_radius_px,
+                100.0 * masked
+            );
+            worst[fam] = worst[fam].max(rmse);
+        }
+    }
+    println!("worst RMSE: tuning {:.5}, held-out {:.5}", worst[0], worst[1]);
+    assert!(worst.iter().all(|&w| w < 0.005));
+}
