@@ -53,7 +53,10 @@ impl RadialSpline {
             ));
         }
         if self.knots[0] != 0.0
-            || self.knots.windows(2).any(|w| !(w[1] > w[0]))
+            || self
+                .knots
+                .windows(2)
+                .any(|w| w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater))
             || self
                 .knots
                 .iter()
@@ -242,6 +245,8 @@ pub(crate) fn centroid_center(images: &[PhotoImage], high_cut: f64) -> [f64; 2] 
 }
 
 /// Fit the radial spline (see the module doc) around `center`; `radius` normalises r.
+// The bins are parallel arrays indexed [image][ring]: index loops read clearer than zips.
+#[allow(clippy::needless_range_loop)]
 pub(crate) fn fit_spline(
     images: &[PhotoImage],
     inverse: &InverseResponse,

@@ -308,6 +308,9 @@ fn fisheye_sweep() {
             worst[fam] = worst[fam].max(rmse);
         }
     }
-    println!("worst RMSE: tuning {:.5}, held-out {:.5}", worst[0], worst[1]);
+    println!(
+        "worst RMSE: tuning {:.5}, held-out {:.5}",
+        worst[0], worst[1]
+    );
     assert!(worst.iter().all(|&w| w < 0.005));
 }

@@ -131,7 +131,7 @@ impl VignetteModel {
         let mut prev = 0.0f64;
         for i in 1..=steps {
             let r = rmax * f64::from(i) / f64::from(steps);
-            if !(self.eval_r2(r * r) > floor) {
+            if self.eval_r2(r * r).partial_cmp(&floor) != Some(std::cmp::Ordering::Greater) {
                 self.mask_radius = Some(prev.max(1e-6));
                 return self.mask_radius;
             }
