@@ -150,3 +150,90 @@ async fn imu_jobs_fail_clearly_on_unsuitable_logs() {
     assert_eq!(p["code"], "invalid_param");
     s.stop().await;
 }
+
+/// `seconds` of log that rests, turns about z (0.5 rad/s peak, sin² profile) during
+/// `[t0, t1]` s, and rests again.
+fn log_with_turn(seconds: f64, t0: f64, t1: f64) -> String {
+    let mut g = Gauss(7);
+    let n = (seconds * RATE) as usize;
+    let (sg, sa) = (GYRO_N * RATE.sqrt(), ACCEL_N * RATE.sqrt());
+    let mut out = String::from(
+        "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]\n",
+    );
+    for i in 0..n {
+        let t = i as f64 / RATE;
+        let wz = if (t0..=t1).contains(&t) {
+            0.5 * (std::f64::consts::PI * (t - t0) / (t1 - t0)).sin().powi(2)
+        } else {
+            0.0
+        };
+        out.push_str(&format!(
+            "{},{:.9},{:.9},{:.9},{:.9},{:.9},{:.9}\n",
+            1_000_000_000u64 + (i as f64 * 1e9 / RATE) as u64,
+            sg * g.next(),
+            sg * g.next(),
+            wz + sg * g.next(),
+            sa * g.next(),
+            sa * g.next(),
+            9.81 + sa * g.next()
+        ));
+    }
+    out
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn imu_noise_refuses_a_moving_log_or_uses_its_longest_static_stretch() {
+    let s = start().await;
+    let ds = s
+        .dataset(vec![(
+            "turn.csv.gz",
+            flate2_gzip(log_with_turn(240.0, 60.0, 70.0).as_bytes()),
+        )])
+        .await;
+    let id = s.job(json!({"kind": "imu_noise", "dataset": ds})).await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "failed", "{done}");
+    assert_eq!(done["attempt"], 1, "bad input is not retried");
+    assert_eq!(done["error"]["code"], "invalid_input", "{done}");
+    let msg = done["error"]["message"].as_str().unwrap_or_default();
+    // The message names the moving interval (≈ 60–70 s, to within the 1 s window).
+    let named = msg
+        .split("moving ")
+        .nth(1)
+        .and_then(|r| r.split(" s").next())
+        .and_then(|r| r.split_once('–'))
+        .and_then(|(a, b)| Some((a.parse::<f64>().ok()?, b.parse::<f64>().ok()?)));
+    let Some((a, b)) = named else {
+        panic!("no interval in {msg}");
+    };
+    assert!((a - 60.0).abs() <= 1.5 && (b - 70.0).abs() <= 1.5, "{msg}");
+    assert!(msg.contains("longest_static"), "{msg}");
+
+    let id = s
+        .job(json!({"kind": "imu_noise", "dataset": ds, "params": {"motion": "longest_static"}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    let sa = &doc["parameters"]["static_analysis"];
+    assert_eq!(sa["moving_intervals_s"].as_array().map(Vec::len), Some(1));
+    let used: Vec<f64> = serde_json::from_value(sa["used_interval_s"].clone()).expect("interval");
+    // The stretch after the turn (70–240 s) is the longest.
+    assert!(
+        used[0] >= 70.0 && used[0] <= 73.0 && used[1] > 238.0,
+        "{used:?}"
+    );
+    let gn = doc["parameters"]["kalibr"]["gyroscope_noise_density"]
+        .as_f64()
+        .expect("gyro N");
+    assert!((gn / GYRO_N - 1.0).abs() < 0.06, "gyro N {gn} vs {GYRO_N}");
+    // Unknown policies are refused before queueing.
+    let (st, p) = s
+        .post_json(
+            "/v1/jobs",
+            &json!({"kind": "imu_noise", "dataset": ds, "params": {"motion": "hope"}}),
+        )
+        .await;
+    assert_eq!(st, 422, "{p}");
+    s.stop().await;
+}

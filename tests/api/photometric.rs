@@ -199,3 +199,83 @@ fn offline_photometric_online_writes_dso_files() {
     let err = dso::read_pcalib(&text).expect_err("non-increasing");
     assert!(err.to_string().contains("100"), "{err}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn vignetting_of_a_fisheye_uses_the_masked_spline() {
+    // 256×256 fisheye flats: cos⁴ falloff inside an image circle of radius ~120 px with a
+    // raised-cosine border to 0 (black corners), 8-bit, shot and read noise.
+    let (w, h) = (256usize, 256usize);
+    let truth = |x: f64, y: f64| {
+        let d = (x - 128.0).hypot(y - 128.0);
+        let border = if d <= 100.0 {
+            1.0
+        } else if d >= 150.0 {
+            0.0
+        } else {
+            0.5 * (1.0 + (std::f64::consts::PI * (d - 100.0) / 50.0).cos())
+        };
+        (0.5 * d / 181.0).cos().powi(4) * border
+    };
+    let mut rng = caliper_core::photometric::synth::Rng::new(17);
+    let files: Vec<(String, Vec<u8>)> = [0.5, 0.75, 0.95]
+        .iter()
+        .enumerate()
+        .map(|(i, &level)| {
+            let data = (0..w * h)
+                .map(|p| {
+                    let v = level * truth((p % w) as f64, (p / w) as f64);
+                    let n = (2e-4 * v + 1.5e-3f64.powi(2)).sqrt() * rng.normal();
+                    ((v + n).clamp(0.0, 1.0) * 255.0).round() as u16
+                })
+                .collect();
+            let im = PhotoImage::new(w, h, 255, data).expect("image");
+            (format!("flat{i}.png"), png(&im))
+        })
+        .collect();
+    let s = start().await;
+    let ds = s.dataset(as_refs(&files)).await;
+    // The polynomial alone fails the way the issue describes.
+    let id = s
+        .job(json!({"kind": "vignetting", "dataset": ds,
+                    "params": {"options": {"vignette_model": "polynomial"}}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "failed", "{done}");
+    // Auto picks the spline, masks the corners and writes a DSO map with 0 there.
+    let id = s.job(json!({"kind": "vignetting", "dataset": ds})).await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    let p = &doc["parameters"];
+    assert_eq!(p["model"], "spline", "{}", p["model_choice"]);
+    let mask = p["mask_radius_px"].as_f64().expect("mask radius");
+    assert!((mask - 150.0).abs() < 10.0, "mask radius {mask}");
+    let knots = p["vignette"]["spline"]["knots"].as_array().expect("knots");
+    let values = p["vignette"]["spline"]["values"]
+        .as_array()
+        .expect("values");
+    assert_eq!(knots.len(), values.len());
+    let r = reqwest::get(s.url(&format!("/v1/jobs/{id}/artifacts/vignette.png")))
+        .await
+        .expect("png");
+    let img = image::load_from_memory(&r.bytes().await.expect("bytes"))
+        .expect("decodes")
+        .into_luma16();
+    assert_eq!(img.get_pixel(0, 0)[0], 0, "masked corner");
+    // Inside the circle the map follows the truth (max-normalised: V(centre) = 1).
+    let mut worst = 0.0f64;
+    for (x, y) in [(128u32, 128u32), (178, 128), (128, 218), (200, 200)] {
+        let got = f64::from(img.get_pixel(x, y)[0]) / 65535.0;
+        worst = worst.max((got - truth(f64::from(x), f64::from(y))).abs());
+    }
+    assert!(worst < 0.02, "map error {worst}");
+    // Out-of-range options are refused before queueing.
+    let (st, prob) = s
+        .post_json(
+            "/v1/jobs",
+            &json!({"kind": "vignetting", "dataset": ds, "params": {"options": {"circle_fraction": 2.0}}}),
+        )
+        .await;
+    assert_eq!(st, 422, "{prob}");
+    s.stop().await;
+}

@@ -16,10 +16,10 @@ use crate::lie::So3;
 use crate::progress::NoProgress;
 
 /// Deterministic generator: splitmix64 + Box-Muller.
-struct Rng(u64, Option<f64>);
+pub(super) struct Rng(u64, Option<f64>);
 
 impl Rng {
-    fn new(seed: u64) -> Self {
+    pub(super) fn new(seed: u64) -> Self {
         Self(seed, None)
     }
     fn next_u64(&mut self) -> u64 {
@@ -32,7 +32,7 @@ impl Rng {
     fn uniform(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
     }
-    fn normal(&mut self) -> f64 {
+    pub(super) fn normal(&mut self) -> f64 {
         if let Some(v) = self.1.take() {
             return v;
         }
@@ -44,7 +44,7 @@ impl Rng {
     }
 }
 
-const HEADER: &str = "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],\
+pub(super) const HEADER: &str = "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],\
                       a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]";
 
 fn csv(rows: &[(i64, [f64; 6])]) -> String {

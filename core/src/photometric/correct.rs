@@ -68,7 +68,13 @@ pub fn correct(
                 .vignette
                 .as_ref()
                 .map_or(1.0, |v| v.eval(x as f64, y as f64) as f32);
-            out.push(lut[usize::from(image.data[y * image.width + x])] * k / vg);
+            // Masked pixels (outside a fisheye's image circle, V = 0) carry no radiance.
+            let v = if vg > 0.0 {
+                lut[usize::from(image.data[y * image.width + x])] * k / vg
+            } else {
+                0.0
+            };
+            out.push(v);
         }
     }
     Plane::new(image.width, image.height, out)

@@ -9,7 +9,8 @@
 //! * [`photometric_response`]: response from a bracketed stack of a static scene (in the spirit
 //!   of Debevec & Malik, SIGGRAPH 1997, but with the EMoR basis, monotonicity and robust
 //!   weighting), optionally re-estimating the exposure ratios.
-//! * [`vignetting`]: `V(r) = 1 + v1 r² + v2 r⁴ + v3 r⁶` (r = 1 at the corners) from flat fields.
+//! * [`vignetting`]: `V(r) = 1 + v1 r² + v2 r⁴ + v3 r⁶` (r = 1 at the corners) from flat fields,
+//!   or a radial spline with an image-circle mask for wide and fisheye lenses ([`RadialSpline`]).
 //! * [`photometric_online`]: response, vignetting and exposures from an auto-exposure video
 //!   (Bergmann, Wang & Cremers, RA-L 2017): gain-robust KLT tracks (Kim & Pollefeys 2008), a
 //!   fast linear exposure estimate, then a joint Huber Levenberg-Marquardt refinement.
@@ -28,18 +29,22 @@ pub mod metrics;
 mod online;
 pub mod plot;
 mod response;
+mod spline;
 pub mod synth;
 mod vignette;
 
+#[cfg(test)]
+mod spline_tests;
 #[cfg(test)]
 mod tests;
 
 pub use bracket::{ResponseParams, ResponseResult, photometric_response};
 pub use correct::{CorrectParams, correct};
 pub use emor::{EMOR_DIM, EMOR_SAMPLES, EmorBasis, emor_basis};
-pub use flat::{VignettingParams, VignettingResult, vignetting};
+pub use flat::{VignetteKind, VignettingParams, VignettingResult, vignetting};
 pub use online::{OnlineParams, OnlineResult, photometric_online};
 pub use response::{InverseResponse, ResponseModel};
+pub use spline::RadialSpline;
 pub use vignette::VignetteModel;
 
 use image::DynamicImage;

@@ -41,7 +41,7 @@ impl Kind for ImuNoise {
     const NAME: &'static str = "imu_noise";
     const SCHEMA: &'static str = "caliper.imu_noise/v1";
     const DATASET: DatasetKind = DatasetKind::ImuLog;
-    const DESCRIPTION: &'static str = "Allan deviation of a static IMU log: noise density N, bias instability B and random walk K per axis, fitted by weighted NNLS, with Kalibr imu.yaml values.";
+    const DESCRIPTION: &'static str = "Allan deviation of a static IMU log: noise density N, bias instability B and random walk K per axis, fitted by weighted NNLS, with Kalibr imu.yaml values. A log in which the IMU moves is refused (invalid_input naming the moving intervals) unless params.motion is longest_static (analyse the longest static stretch) or ignore.";
     const EXPORTS: &'static [Export] = &[Export {
         format: "kalibr-yaml",
         media_type: "application/yaml",
@@ -67,6 +67,8 @@ impl Kind for ImuNoise {
             "rate_hz": report.rate_hz,
             "duration_s": report.duration_s,
             "samples": report.samples,
+            "moving_intervals_s": report.static_analysis.moving_intervals_s,
+            "used_interval_s": report.static_analysis.used_interval_s,
             "kalibr": report.kalibr,
             "warnings": report.warnings.len(),
         });

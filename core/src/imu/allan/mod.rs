@@ -23,6 +23,9 @@
 //! weighted by √(clusters). The classic slope read-offs (N at τ = 1 s of the −½ line, K at
 //! τ = 3 s of the +½ line, B = min ADEV / 0.6643) are reported beside it.
 //!
+//! Before the analysis the log goes through the motion check (`super::motion`): a moving log is
+//! refused, trimmed to its longest static stretch or only flagged, per `params.motion`.
+//!
 //! Files: `types` (parameters and the report), `oavar` (the blocked multi-τ sum over the
 //! cumulative sum), `edf` (equivalent degrees of freedom and confidence intervals), `fit` (the
 //! NNLS noise fit, its uncertainty and the classic read-offs); this file runs the analysis
@@ -43,13 +46,14 @@ pub use types::{
 };
 
 use super::log::{ImuLog, read_imu_log};
+use super::motion::choose_static;
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
 use edf::{avar_interval, normal_quantile};
 
 /// Streams an IMU CSV log and characterises its noise by Allan deviation (see the module doc).
 ///
-/// Progress steps: `"parse"` (bytes), `"allan"` (axes done of 6).
+/// Progress steps: `"parse"` (bytes), `"motion"` (windows checked), `"allan"` (axes done of 6).
 pub fn imu_noise(
     reader: impl std::io::BufRead,
     params: &ImuNoiseParams,
@@ -77,7 +81,21 @@ pub fn imu_noise_from_log(
             "cannot estimate the sample rate from the timestamps",
         ));
     }
-    let n = log.len();
+    let choice = choose_static(
+        log,
+        rate,
+        params.motion,
+        params.motion_window_s,
+        params.motion_k,
+        progress,
+    )?;
+    let (lo, hi) = choice.range;
+    let n = hi - lo;
+    let duration_s = if n == log.len() {
+        stats.duration_s
+    } else {
+        choice.analysis.used_interval_s[1] - choice.analysis.used_interval_s[0]
+    };
     let ms = cluster_sizes(n, params.taus_per_octave);
     if ms.len() < 3 {
         return Err(CoreError::input(format!(
@@ -90,7 +108,12 @@ pub fn imu_noise_from_log(
     let mut x = PhaseBuffer::default();
     let mut sums: Vec<Vec<f64>> = Vec::with_capacity(6);
     for c in 0..6 {
-        sums.push(oavar_sums(log.channel_offsets(c), &ms, &mut x, progress)?);
+        sums.push(oavar_sums(
+            &log.channel_offsets(c)[lo..hi],
+            &ms,
+            &mut x,
+            progress,
+        )?);
         progress.report("allan", c as u64 + 1, 6);
     }
     drop(x);
@@ -132,7 +155,7 @@ pub fn imu_noise_from_log(
         });
     }
 
-    let mut warnings = Vec::new();
+    let mut warnings: Vec<String> = choice.warning.clone().into_iter().collect();
     if stats.gaps > 0 {
         warnings.push(format!(
             "{} timestamp gaps totalling {:.3} s ({:.2} % of the log): the Allan deviation assumes \
@@ -154,7 +177,7 @@ pub fn imu_noise_from_log(
         warnings.push(format!(
             "log of {:.0} s: B or K not determinable on some axes (see the reasons); \
              bias instability and random walk typically need hours of static data",
-            stats.duration_s
+            duration_s
         ));
     }
     let kalibr = kalibr_summary(&axes, rate);
@@ -162,8 +185,9 @@ pub fn imu_noise_from_log(
         schema: "caliper.imu_noise/v1".to_string(),
         rate_hz: rate,
         rate_source,
-        duration_s: stats.duration_s,
+        duration_s,
         samples: n,
+        static_analysis: choice.analysis,
         axes,
         kalibr,
         method: format!(

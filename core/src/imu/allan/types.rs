@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{CoreError, CoreResult};
 use crate::imu::log::{ImuCsvParams, ParseStats};
+use crate::imu::motion::{MotionPolicy, StaticAnalysis};
 // Items the doc comments link to. The comments themselves stay as they are: with the `schema`
 // feature they are the OpenAPI descriptions.
 #[cfg(doc)]
@@ -34,6 +35,17 @@ pub struct ImuNoiseParams {
     pub max_relative_uncertainty: f64,
     /// Two-sided confidence level of the per-τ intervals (default 0.683, ±1 σ).
     pub confidence: f64,
+    /// What to do when the IMU moves during the log: `refuse` (default; the job fails with
+    /// `invalid_input` naming the moving intervals), `longest_static` (analyse the longest
+    /// static stretch only) or `ignore` (analyse everything, warn).
+    pub motion: MotionPolicy,
+    /// Window of the motion check, s (default 1; 0.05 to 600). Each window must hold ≥ 10
+    /// samples (shorter windows are widened).
+    pub motion_window_s: f64,
+    /// Threshold factor of the motion check: a window moves when its spread or its mean
+    /// departs from the log's own noise floor by more than this many floor standard deviations
+    /// (default 3; 1.5 to 1000).
+    pub motion_k: f64,
 }
 
 impl Default for ImuNoiseParams {
@@ -46,6 +58,9 @@ impl Default for ImuNoiseParams {
             fit_min_clusters: 2.0,
             max_relative_uncertainty: 0.3,
             confidence: 0.683,
+            motion: MotionPolicy::Refuse,
+            motion_window_s: 1.0,
+            motion_k: 3.0,
         }
     }
 }
@@ -72,6 +87,15 @@ impl ImuNoiseParams {
         }
         if !(self.confidence > 0.0 && self.confidence < 1.0) {
             return Err(CoreError::param("confidence", "must be within (0, 1)"));
+        }
+        if !(self.motion_window_s.is_finite() && (0.05..=600.0).contains(&self.motion_window_s)) {
+            return Err(CoreError::param(
+                "motion_window_s",
+                "must be within 0.05..=600 s",
+            ));
+        }
+        if !(self.motion_k.is_finite() && (1.5..=1000.0).contains(&self.motion_k)) {
+            return Err(CoreError::param("motion_k", "must be within 1.5..=1000"));
         }
         Ok(())
     }
@@ -224,6 +248,9 @@ pub struct ImuNoiseReport {
     pub duration_s: f64,
     /// Samples analysed.
     pub samples: usize,
+    /// The motion check: moving intervals found, static stretches, the interval analysed.
+    #[serde(default)]
+    pub static_analysis: StaticAnalysis,
     /// Six axes: gyro x, y, z then accel x, y, z.
     pub axes: Vec<AxisNoise>,
     /// Kalibr worst-axis summary.

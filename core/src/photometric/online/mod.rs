@@ -395,9 +395,16 @@ pub fn photometric_online(
     )?;
     let response = ResponseModel::Emor { c: state.c };
     let monotone = response.is_monotone();
-    let vignette = params
-        .fit_vignette
-        .then(|| VignetteModel::centered(w, h, state.v));
+    // A fisheye's tracks stay inside the image circle; the polynomial extrapolated to the dark
+    // corners may turn negative there. Mask it from where it falls to 1 % (the mask radius is
+    // in the model) instead of failing the job on an unusable `vignette.png`.
+    let vignette = params.fit_vignette.then(|| {
+        let mut m = VignetteModel::centered(w, h, state.v);
+        if m.validate().is_err() {
+            m.mask_below(0.01);
+        }
+        m
+    });
     Ok(OnlineResult {
         schema: PHOTOMETRIC_SCHEMA.to_string(),
         model: PhotometricModel::new(response, vignette),

@@ -1,4 +1,5 @@
-//! `vignetting`: V(r) from flat-field images.
+//! `vignetting`: V(r) from flat-field images (the polynomial, or the radial spline with an
+//! image-circle mask for fisheye lenses; see `caliper_core::photometric::vignetting`).
 
 use caliper_core::Progress;
 use caliper_core::photometric::{InverseResponse, PhotometricModel, VignettingParams, vignetting};
@@ -30,7 +31,7 @@ impl Kind for Vignetting {
     const NAME: &'static str = "vignetting";
     const SCHEMA: &'static str = "caliper.photometric/v1";
     const DATASET: DatasetKind = DatasetKind::Images;
-    const DESCRIPTION: &'static str = "Vignetting V(r) = 1 + v1 r² + v2 r⁴ + v3 r⁶ (optionally its centre) from flat-field images; DSO vignette.png.";
+    const DESCRIPTION: &'static str = "Vignetting from flat-field images: V(r) = 1 + v1 r² + v2 r⁴ + v3 r⁶ (optionally its centre), or for fisheye and wide lenses a radial spline with the pixels outside the image circle masked (options.vignette_model: polynomial, spline or auto); DSO vignette.png (0 where masked).";
     const EXPORTS: &'static [Export] = super::EXPORTS;
     type Params = VignettingJobParams;
     type Cli = JsonParams;
@@ -68,6 +69,8 @@ impl Kind for Vignetting {
             "images": images.len(),
             "relative_rms": r.relative_rms,
             "pixels_used": r.pixels_used,
+            "model": r.model,
+            "mask_radius_px": r.mask_radius_px,
         });
         Ok(JobOutput {
             parameters: to_value(&r)?,
