@@ -10,7 +10,10 @@
 //! Run: `BENCH_POSTGRES_URL=postgres://postgres@127.0.0.1:5432/test
 //! BENCH_S3_ENDPOINT=http://127.0.0.1:5077 cargo bench -p caliper-service --bench fleet`
 //! (`.ci/run` starts moto; `moto_server -p 5077` does by hand). Env: `BENCH_SECS` (10),
-//! `BENCH_CONNS` (64), `BENCH_UPLOAD_MB` (1024). Needs `wrk` and `curl`.
+//! `BENCH_CONNS` (64), `BENCH_UPLOAD_MB` (1024), `BENCH_BIN` (a release `caliper` to measure
+//! instead of the bench profile's; the harness only drives `wrk` and `curl`, so
+//! `BENCH_BIN=target/release/caliper cargo test -p caliper-service --bench fleet` measures the
+//! same binary without building the service a second time). Needs `wrk` and `curl`.
 
 use std::io::{BufRead, BufReader, Write};
 use std::process::{Child, Command, Stdio};
@@ -47,8 +50,15 @@ impl Drop for Proc {
     }
 }
 
+/// The binary measured: `BENCH_BIN`, or the one cargo built with this bench.
+fn caliper_bin() -> std::path::PathBuf {
+    std::env::var_os("BENCH_BIN")
+        .filter(|b| !b.is_empty())
+        .map_or_else(|| env!("CARGO_BIN_EXE_caliper").into(), Into::into)
+}
+
 fn spawn(data: &std::path::Path, args: &[&str], env: &[(&str, String)]) -> Proc {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_caliper"))
+    let mut child = Command::new(caliper_bin())
         .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
         .arg(data)
         .args(args)
