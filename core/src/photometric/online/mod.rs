@@ -13,6 +13,7 @@
 //!    1 and `f(0.5) = gamma_gauge` (default 0.5, i.e. `f⁻¹(0.5) = 0.5`), so results are unique
 //!    and repeatable.
 
+mod gauge;
 pub(crate) mod klt;
 
 use serde::{Deserialize, Serialize};
@@ -47,8 +48,10 @@ pub struct OnlineParams {
     pub high_cut: f64,
     /// Fit the vignetting (otherwise `V = 1`).
     pub fit_vignette: bool,
-    /// γ gauge: the fitted response satisfies `f(0.5) = gamma_gauge`.
-    pub gamma_gauge: f64,
+    /// γ gauge: `Some(m)` makes the fitted response satisfy `f(0.5) = m`; `None` (default)
+    /// chooses `m` from the data, the member of the exponential family that EMoR-4 represents
+    /// best (a fixed value can keep EMoR-4 from following a strongly concave response).
+    pub gamma_gauge: Option<f64>,
     /// Huber threshold in 8-bit levels.
     pub huber_levels: f64,
     /// Joint refinement iteration limit.
@@ -68,7 +71,7 @@ impl Default for OnlineParams {
             low_cut: 3.0 / 255.0,
             high_cut: 250.0 / 255.0,
             fit_vignette: true,
-            gamma_gauge: 0.5,
+            gamma_gauge: None,
             huber_levels: 3.0,
             max_iterations: 40,
             max_points: 6000,
@@ -100,7 +103,10 @@ impl OnlineParams {
                 "need 0 ≤ low_cut < high_cut ≤ 1",
             ));
         }
-        if !(self.gamma_gauge > 0.05 && self.gamma_gauge < 0.95) {
+        if self
+            .gamma_gauge
+            .is_some_and(|m| !(m > 0.05 && m < 0.95))
+        {
             return Err(CoreError::param("gamma_gauge", "must be in (0.05, 0.95)"));
         }
         if !(self.huber_levels.is_finite() && self.huber_levels > 0.0) {
@@ -378,14 +384,42 @@ pub fn photometric_online(
         progress,
     )?;
     let initial: Vec<f64> = state.log_e.iter().map(|l| l.exp()).collect();
-    gauge_start(&mut state, params.gamma_gauge);
+    let gamma_gauge = match params.gamma_gauge {
+        Some(m) => {
+            gauge_start(&mut state, m);
+            m
+        }
+        None => {
+            let choice = gauge::choose_gauge(
+                &obs,
+                n_points as usize,
+                &state,
+                huber,
+                params.fit_vignette,
+                progress,
+            )?;
+            // Radiances of the points left out of the profile: the start's, moved to the
+            // chosen gauge.
+            gauge_start(&mut state, choice.gauge);
+            let every = (n_points as usize).div_ceil(gauge::PROFILE_POINTS).max(1);
+            for (i, l) in state.log_l.iter_mut().enumerate() {
+                if i % every == 0 {
+                    *l = choice.state.log_l[i];
+                }
+            }
+            state.c = choice.state.c;
+            state.v = choice.state.v;
+            state.log_e = choice.state.log_e;
+            choice.gauge
+        }
+    };
     let rep = refine(
         &obs,
         &JointConfig {
             fit_response: true,
             fit_vignette: params.fit_vignette,
             fit_exposures: true,
-            gamma_gauge: Some(params.gamma_gauge),
+            gamma_gauge: Some(gamma_gauge),
             huber,
             max_iterations: params.max_iterations,
             label: "refine",
