@@ -16,13 +16,13 @@
 //!     [tuning|eval|shared] [cases] [frames] [width] [height]
 //! ```
 //!
-//! `SWEEP_GAUGE=0.5` runs the old fixed gauge `f(0.5) = 0.5` for comparison. `shared` runs the shared `ae_seq_seed0` (from `CALIPER_PHOTO_DATA`, default
+//! `SWEEP_PARAMS='{"gamma_gauge": 0.5}'` (any `OnlineParams` JSON) runs the old fixed gauge
+//! `f(0.5) = 0.5` for comparison. `shared` runs the shared `ae_seq_seed0` (from `CALIPER_PHOTO_DATA`, default
 //! `../shared/data/photometric`) instead.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use caliper_core::NoProgress;
 use caliper_core::io::ImageLimits;
 use caliper_core::photometric::dso::read_vignette_png;
 use caliper_core::photometric::metrics::{exposure_error_pct, gamma_align, vignette_rmse};
@@ -61,7 +61,10 @@ fn emor_draw(rng: &mut Rng) -> ResponseModel {
 fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamera, AeVideo) {
     let eval = set == "eval";
     let seed = if eval { 1000 + i as u64 } else { i as u64 };
-    let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(if eval { 17 } else { 3 }));
+    let mut rng = Rng::new(
+        seed.wrapping_mul(7919)
+            .wrapping_add(if eval { 17 } else { 3 }),
+    );
     // Fixed responses first (the issue's cases), then alternate EMoR draws and gamma curves.
     let response = match (eval, i) {
         (false, 0) => ResponseModel::Emor { c: [0.0; 4] },
@@ -163,6 +166,22 @@ fn cpu_seconds() -> f64 {
         .unwrap_or(f64::NAN)
 }
 
+/// Records the CPU time at which each named stage starts.
+struct Stages(std::sync::Mutex<Vec<(String, f64)>>);
+
+impl caliper_core::Progress for Stages {
+    fn report(&self, step: &str, _: u64, _: u64) {
+        if let Ok(mut s) = self.0.lock()
+            && s.last().is_none_or(|l| l.0 != step)
+        {
+            s.push((step.to_string(), cpu_seconds()));
+        }
+    }
+    fn is_canceled(&self) -> bool {
+        false
+    }
+}
+
 fn score(
     name: String,
     frames: &[PhotoImage],
@@ -171,14 +190,13 @@ fn score(
     truth_e: &[f64],
 ) -> Row {
     let (t0, c0) = (Instant::now(), cpu_seconds());
-    // `SWEEP_GAUGE=0.5` reproduces the old fixed gauge.
-    let params = OnlineParams {
-        gamma_gauge: std::env::var("SWEEP_GAUGE")
-            .ok()
-            .and_then(|s| s.parse().ok()),
-        ..OnlineParams::default()
-    };
-    let res = photometric_online(frames, &params, &NoProgress);
+    // `SWEEP_PARAMS='{"gamma_gauge": 0.5}'` reproduces the old fixed gauge.
+    let params: OnlineParams = std::env::var("SWEEP_PARAMS")
+        .ok()
+        .and_then(|s| serde_json::from_str(&s).ok())
+        .unwrap_or_default();
+    let stages = Stages(std::sync::Mutex::new(Vec::new()));
+    let res = photometric_online(frames, &params, &stages);
     let secs = t0.elapsed().as_secs_f64();
     let cpu = cpu_seconds() - c0;
     match res {
@@ -187,13 +205,51 @@ fn score(
                 values: r.model.inverse_256.clone(),
             };
             let (alpha, resp) = gamma_align(&fit, truth_inv);
-            let vmap = r.model.vignette.as_ref().map(|v| v.map()).unwrap_or_default();
+            let vmap = r
+                .model
+                .vignette
+                .as_ref()
+                .map(|v| v.map())
+                .unwrap_or_default();
             let vig = vignette_rmse(&vmap, truth_vig, alpha);
             let exp = exposure_error_pct(&r.exposure_ratios, truth_e, alpha);
+            // Exposure error with the best common scale instead of frame 0's: tells a bad
+            // frame 0 from a bad shape.
+            let d: Vec<f64> = r
+                .exposure_ratios
+                .iter()
+                .zip(truth_e)
+                .map(|(f, t)| alpha * f.ln() - t.ln())
+                .collect();
+            let mean = d.iter().sum::<f64>() / d.len().max(1) as f64;
+            let exp_free = 100.0
+                * (d.iter().map(|x| (x - mean).exp_m1().powi(2)).sum::<f64>()
+                    / d.len().max(1) as f64)
+                    .sqrt();
+            let (lo, hi) = truth_e
+                .iter()
+                .fold((f64::MAX, 0.0f64), |a, &e| (a.0.min(e), a.1.max(e)));
+            let sat = frames
+                .iter()
+                .map(|f| f.data.iter().filter(|&&v| v >= f.max_level - 2).count())
+                .sum::<usize>() as f64
+                / frames.iter().map(|f| f.data.len()).sum::<usize>().max(1) as f64;
             println!(
-                "{name:70} resp {resp:.4} vig {vig:.4} exp {exp:5.2}% α {alpha:.3} {secs:.2}s cpu {cpu:.2}s it {} rms {:.2}",
-                r.diagnostics.iterations, r.diagnostics.residual_rms_levels
+                "{name:70} resp {resp:.4} vig {vig:.4} exp {exp:5.2}% (scale-free {exp_free:.2}%) α {alpha:.3} {secs:.2}s cpu {cpu:.2}s it {} rms {:.2} f(.5) {:.3} e {lo:.2}..{hi:.2} sat {:.1}%",
+                r.diagnostics.iterations,
+                r.diagnostics.residual_rms_levels,
+                r.model.response.forward(0.5),
+                100.0 * sat
             );
+            if std::env::var_os("SWEEP_STAGES").is_some()
+                && let Ok(s) = stages.0.lock()
+            {
+                let st: Vec<String> = s
+                    .iter()
+                    .map(|(n, t)| format!("{n}@{:.2}", t - c0))
+                    .collect();
+                println!("    stages (cpu s): {}", st.join(" "));
+            }
             Row {
                 name,
                 resp,
@@ -237,12 +293,10 @@ fn shared(dir: &Path) -> Result<Row, String> {
     paths.sort();
     let frames = paths
         .into_iter()
-        .map(|p| {
-            PhotoImage::decode(&read(p)?, &ImageLimits::default()).map_err(|e| e.to_string())
-        })
+        .map(|p| PhotoImage::decode(&read(p)?, &ImageLimits::default()).map_err(|e| e.to_string()))
         .collect::<Result<Vec<_>, _>>()?;
-    let gt: serde_json::Value = serde_json::from_slice(&read(dir.join("gt.json"))?)
-        .map_err(|e| format!("gt.json: {e}"))?;
+    let gt: serde_json::Value =
+        serde_json::from_slice(&read(dir.join("gt.json"))?).map_err(|e| format!("gt.json: {e}"))?;
     let f64s = |v: &serde_json::Value| -> Vec<f64> {
         v.as_array()
             .map(|a| a.iter().filter_map(serde_json::Value::as_f64).collect())
@@ -290,6 +344,12 @@ fn main() {
             continue;
         }
         let (name, cam, video) = case(&set, i, width, height);
+        // `SWEEP_VIDEO=default` renders every case with the shared data's scene and program.
+        let video = if std::env::var("SWEEP_VIDEO").is_ok_and(|v| v == "default") {
+            AeVideo::default()
+        } else {
+            video
+        };
         let seq = render_ae_video(&cam, frames, &video);
         rows.push(score(
             name,

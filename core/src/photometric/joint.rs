@@ -345,7 +345,9 @@ pub(crate) fn regauge(state: &mut JointState, gauge: f64) {
         mono[j] = mono[j].max(mono[j - 1] + 1e-9);
     }
     let n = (EMOR_SAMPLES - 1) as f64;
-    let j = mono.partition_point(|&y| y < gauge).clamp(1, EMOR_SAMPLES - 1);
+    let j = mono
+        .partition_point(|&y| y < gauge)
+        .clamp(1, EMOR_SAMPLES - 1);
     let (a, bb) = (mono[j - 1], mono[j]);
     let x_m = (j as f64 - 1.0 + ((gauge - a) / (bb - a).max(1e-12)).clamp(0.0, 1.0)) / n;
     let k = x_m.max(1e-6).ln() / 0.5f64.ln();

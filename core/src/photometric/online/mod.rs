@@ -11,7 +11,7 @@
 //! 3. Joint Huber Levenberg-Marquardt over response (EMoR-4), vignetting (`v1..v3`),
 //!    exposures and radiances ([`super::joint`]), with the gauge fixed explicitly: exposure 0 is
 //!    1 and `f(0.5) = gamma_gauge` (default 0.5, i.e. `f⁻¹(0.5) = 0.5`), so results are unique
-//!    and repeatable.
+//!    and repeatable; with `gamma_gauge: null` the value is chosen from the data ([`gauge`]).
 
 mod gauge;
 pub(crate) mod klt;
@@ -48,9 +48,11 @@ pub struct OnlineParams {
     pub high_cut: f64,
     /// Fit the vignetting (otherwise `V = 1`).
     pub fit_vignette: bool,
-    /// γ gauge: `Some(m)` makes the fitted response satisfy `f(0.5) = m`; `None` (default)
-    /// chooses `m` from the data, the member of the exponential family that EMoR-4 represents
-    /// best (a fixed value can keep EMoR-4 from following a strongly concave response).
+    /// γ gauge: `Some(m)` (default 0.5) makes the fitted response satisfy `f(0.5) = m`;
+    /// `null` chooses `m` from the data by profiling the robust cost (experimental: the member
+    /// of the exponential family that EMoR-4 represents best, since a fixed value can keep
+    /// EMoR-4 from following a strongly concave response; not yet validated by the sweep, see
+    /// `examples/photometric_sweep.rs`).
     pub gamma_gauge: Option<f64>,
     /// Huber threshold in 8-bit levels.
     pub huber_levels: f64,
@@ -71,7 +73,7 @@ impl Default for OnlineParams {
             low_cut: 3.0 / 255.0,
             high_cut: 250.0 / 255.0,
             fit_vignette: true,
-            gamma_gauge: None,
+            gamma_gauge: Some(0.5),
             huber_levels: 3.0,
             max_iterations: 40,
             max_points: 6000,
@@ -103,10 +105,7 @@ impl OnlineParams {
                 "need 0 ≤ low_cut < high_cut ≤ 1",
             ));
         }
-        if self
-            .gamma_gauge
-            .is_some_and(|m| !(m > 0.05 && m < 0.95))
-        {
+        if self.gamma_gauge.is_some_and(|m| !(m > 0.05 && m < 0.95)) {
             return Err(CoreError::param("gamma_gauge", "must be in (0.05, 0.95)"));
         }
         if !(self.huber_levels.is_finite() && self.huber_levels > 0.0) {
@@ -171,6 +170,26 @@ pub fn photometric_online(
 ) -> CoreResult<OnlineResult> {
     params.validate()?;
     let (w, h) = check_stack(frames, 3)?;
+    let seen = observe(frames, params, w, h, progress)?;
+    fit(frames.len(), w, h, seen, params, progress)
+}
+
+/// Samples of tracked scene points, sorted by point (renumbered densely) then frame.
+pub(crate) struct Observations {
+    pub obs: Vec<Obs>,
+    pub n_points: u32,
+    pub used_tracks: usize,
+    pub mean_len: f64,
+}
+
+/// Track features through the video and sample them.
+pub(crate) fn observe(
+    frames: &[PhotoImage],
+    params: &OnlineParams,
+    w: usize,
+    h: usize,
+    progress: &dyn Progress,
+) -> CoreResult<Observations> {
     let vig0 = VignetteModel::centered(w, h, [0.0; 3]);
     let cfg = KltConfig {
         half_window: params.half_window as i32,
@@ -329,7 +348,29 @@ pub fn photometric_online(
             obs.len()
         )));
     }
-    let nf = frames.len();
+    Ok(Observations {
+        obs,
+        n_points,
+        used_tracks,
+        mean_len,
+    })
+}
+
+/// Exposures, then the joint refinement, from the observations.
+fn fit(
+    nf: usize,
+    w: usize,
+    h: usize,
+    seen: Observations,
+    params: &OnlineParams,
+    progress: &dyn Progress,
+) -> CoreResult<OnlineResult> {
+    let Observations {
+        obs,
+        n_points,
+        used_tracks,
+        mean_len,
+    } = seen;
     // Frame-to-frame exposure ratios under the mean response.
     let g0 = ResponseModel::default().inverse(4096);
     let lg = |o: &Obs| g0.eval(f64::from(o.value)).max(1e-6).ln();
