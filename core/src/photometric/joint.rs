@@ -66,6 +66,8 @@ pub(crate) struct JointReport {
     /// Unweighted RMS of the residuals of the inliers (|r| ≤ 3·huber), normalised intensity.
     pub rms: f64,
     pub inliers: usize,
+    /// Final robust cost (data term plus penalties).
+    pub cost: f64,
 }
 
 /// Step below which an EMoR segment counts as non-increasing (per sample of the basis grid).
@@ -315,28 +317,48 @@ pub(crate) fn refine(
         f64::NAN
     };
     report.inliers = n;
+    report.cost = cost;
     Ok(report)
 }
 
 /// Move a start that assumed the mean response `f0` into the γ gauge `f(0.5) = gauge` without
-/// changing what it predicts: `f̃(x) = f0(x^k)` with `0.5^k = f0⁻¹(gauge)`, exposures and
-/// radiances raised to `1/k`, and `f̃` projected onto the EMoR basis by least squares. Starting
-/// in the right gauge sheet avoids a first step dominated by the gauge constraint, after which
-/// LM can stall in the curved γ valley.
+/// changing what it predicts (see [`regauge`]). Starting in the right gauge sheet avoids a
+/// first step dominated by the gauge constraint, after which LM can stall in the curved γ
+/// valley.
 pub(crate) fn gauge_start(state: &mut JointState, gauge: f64) {
-    use super::response::{ResponseModel, interp_table};
+    state.c = [0.0; EMOR_DIM];
+    regauge(state, gauge);
+}
+
+/// Move `state` along the exponential ambiguity to the sheet `f(0.5) = gauge` while keeping
+/// its predictions: `f̃(x) = f(x^k)` with `0.5^k = f⁻¹(gauge)`, exposures and radiances raised
+/// to `1/k`, `Ṽ = V^{1/k}`; `f̃` and `Ṽ` are projected onto the EMoR basis and the
+/// polynomial by least squares, so the move is exact only where the models can follow (that
+/// residual is what makes some gauges fit better than others).
+pub(crate) fn regauge(state: &mut JointState, gauge: f64) {
+    use super::response::interp_table;
     let b = emor_basis();
-    let x_m = ResponseModel::default().inverse(4096).eval(gauge);
-    let k = x_m.max(1e-6).ln() / 0.5f64.ln();
-    if !(k.is_finite() && k > 0.05) {
-        return;
+    let curve = b.curve(&state.c);
+    // f⁻¹(gauge) on the (monotone-repaired) table.
+    let mut mono = curve.clone();
+    for j in 1..mono.len() {
+        mono[j] = mono[j].max(mono[j - 1] + 1e-9);
     }
     let n = (EMOR_SAMPLES - 1) as f64;
+    let j = mono
+        .partition_point(|&y| y < gauge)
+        .clamp(1, EMOR_SAMPLES - 1);
+    let (a, bb) = (mono[j - 1], mono[j]);
+    let x_m = (j as f64 - 1.0 + ((gauge - a) / (bb - a).max(1e-12)).clamp(0.0, 1.0)) / n;
+    let k = x_m.max(1e-6).ln() / 0.5f64.ln();
+    if !(k.is_finite() && k > 0.05 && k < 20.0) {
+        return;
+    }
     let mut ata = nalgebra::Matrix4::<f64>::zeros();
     let mut atb = nalgebra::Vector4::<f64>::zeros();
     for j in 0..EMOR_SAMPLES {
         let x = j as f64 / n;
-        let target = interp_table(&b.f0, x.powf(k)) - b.f0[j];
+        let target = interp_table(&mono, x.powf(k)) - b.f0[j];
         for a in 0..EMOR_DIM {
             atb[a] += b.h[a][j] * target;
             for c in 0..EMOR_DIM {
@@ -347,6 +369,24 @@ pub(crate) fn gauge_start(state: &mut JointState, gauge: f64) {
     if let Some(ch) = ata.cholesky() {
         let c = ch.solve(&atb);
         state.c = [c[0], c[1], c[2], c[3]];
+    }
+    // V^{1/k} - 1 = v1 r² + v2 r⁴ + v3 r⁶ by least squares on r² ∈ [0, 1.2].
+    let mut vta = nalgebra::Matrix3::<f64>::zeros();
+    let mut vtb = nalgebra::Vector3::<f64>::zeros();
+    for i in 0..=48 {
+        let r2 = 1.2 * f64::from(i) / 48.0;
+        let t = vignette(&state.v, r2).powf(1.0 / k) - 1.0;
+        let p = [r2, r2 * r2, r2 * r2 * r2];
+        for a in 0..3 {
+            vtb[a] += p[a] * t;
+            for c in 0..3 {
+                vta[(a, c)] += p[a] * p[c];
+            }
+        }
+    }
+    if let Some(ch) = vta.cholesky() {
+        let v = ch.solve(&vtb);
+        state.v = [v[0], v[1], v[2]];
     }
     for l in state.log_e.iter_mut().chain(state.log_l.iter_mut()) {
         *l /= k;

@@ -88,14 +88,24 @@ impl SynthCamera {
 
     /// Form an image from an irradiance function (before vignetting, exposure included).
     fn form(&self, rng: &mut Rng, irr: impl Fn(f64, f64) -> f64) -> PhotoImage {
-        let fwd = self.response.forward_table();
         let vm = self.vignette_model();
+        self.form_with(rng, irr, |x, y| vm.eval(x, y))
+    }
+
+    /// [`Self::form`] with any vignetting function of the pixel position.
+    fn form_with(
+        &self,
+        rng: &mut Rng,
+        irr: impl Fn(f64, f64) -> f64,
+        vig: impl Fn(f64, f64) -> f64,
+    ) -> PhotoImage {
+        let fwd = self.response.forward_table();
         let max = f64::from(self.max_level());
         let mut data = Vec::with_capacity(self.width * self.height);
         for y in 0..self.height {
             for x in 0..self.width {
                 let (xf, yf) = (x as f64, y as f64);
-                let e = irr(xf, yf) * vm.eval(xf, yf);
+                let e = irr(xf, yf) * vig(xf, yf);
                 let sigma = (self.shot * e.max(0.0) + self.read * self.read).sqrt();
                 let e = (e + sigma * rng.normal()).clamp(0.0, 1.0);
                 data.push((interp_table(&fwd, e) * max).round() as u16);
@@ -192,40 +202,218 @@ pub struct AeSequence {
     pub exposures: Vec<f64>,
     /// Timestamps in seconds (20 fps).
     pub timestamps: Vec<f64>,
+    /// True attenuation map (row after row, maximum 1 at the centre).
+    pub vignette_map: Vec<f32>,
 }
 
 /// A camera gliding over a textured plane (translation ~2 px/frame, slow rotation and zoom)
 /// with a proportional auto-exposure controller aiming at mid grey, plus a 5 % exposure
 /// flicker, like the shared `ae_seq_seed0` data.
 pub fn render_ae_sequence(cam: &SynthCamera, frames: usize) -> AeSequence {
-    let tex = Texture::new(cam.seed, 0.0625, 7.0);
+    render_ae_video(cam, frames, &AeVideo::default())
+}
+
+/// How the exposure of [`render_ae_video`] evolves.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ExposureProgram {
+    /// Proportional controller on the mean of the previous frame: `e ← e · (target / mean)^gain`
+    /// times a log-normal flicker of relative size `flicker`.
+    AutoExposure {
+        /// Target mean intensity (normalised).
+        target: f64,
+        /// Controller exponent.
+        gain: f64,
+        /// Relative flicker (standard deviation).
+        flicker: f64,
+    },
+    /// Scripted: `log₂ e` follows a sine of `stops` amplitude and `period` frames, plus flicker.
+    Sweep {
+        /// Amplitude in stops.
+        stops: f64,
+        /// Period in frames.
+        period: f64,
+        /// Relative flicker (standard deviation).
+        flicker: f64,
+    },
+    /// Scripted: a new exposure, uniform within `±stops` of the start, every `hold` frames.
+    Steps {
+        /// Half range in stops.
+        stops: f64,
+        /// Frames per step.
+        hold: usize,
+    },
+}
+
+/// The scene's radiance pattern.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SceneForm {
+    /// Smooth sum of sinusoids ([`Texture`]).
+    Waves,
+    /// Soft-edged Voronoi patches of random radiance: flat regions with corners, unlike the
+    /// smooth waves.
+    Patches,
+}
+
+/// The true vignetting law.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum VignetteForm {
+    /// The camera's even polynomial ([`SynthCamera::vignette`]).
+    Polynomial,
+    /// Natural cos⁴ fall-off, `V = cos⁴(atan(r · tan θ))` with `θ` the half-angle at the
+    /// corner (not a polynomial: the model can only approximate it).
+    Cos4 {
+        /// Corner half-angle in degrees.
+        corner_deg: f64,
+    },
+}
+
+/// Scene, exposure program and vignetting of an AE video.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AeVideo {
+    /// Exposure program.
+    pub program: ExposureProgram,
+    /// Scene pattern.
+    pub scene: SceneForm,
+    /// Mid radiance at the start exposure divided by `E_START` (the scene's grey level).
+    pub mid: f64,
+    /// Scene contrast in stops.
+    pub stops: f64,
+    /// Motion speed factor (1 = ~2 px/frame).
+    pub speed: f64,
+    /// Vignetting law.
+    pub vignette: VignetteForm,
+}
+
+impl Default for AeVideo {
+    /// The shared `ae_seq_seed0`-like video.
+    fn default() -> Self {
+        Self {
+            program: ExposureProgram::AutoExposure {
+                target: 0.43,
+                gain: 0.6,
+                flicker: 0.05,
+            },
+            scene: SceneForm::Waves,
+            mid: 0.0625,
+            stops: 7.0,
+            speed: 1.0,
+            vignette: VignetteForm::Polynomial,
+        }
+    }
+}
+
+/// Soft Voronoi patches: cells of 40 units, one jittered site and one radiance per cell.
+fn patches(seed: u64, u: f64, v: f64) -> f64 {
+    const CELL: f64 = 40.0;
+    let hash = |i: i64, j: i64, k: u64| {
+        let mut r = Rng::new(
+            seed ^ (i as u64).wrapping_mul(0x9E37_79B9) ^ (j as u64).wrapping_mul(0x85EB_CA6B) ^ k,
+        );
+        r.uniform()
+    };
+    let (ci, cj) = ((u / CELL).floor() as i64, (v / CELL).floor() as i64);
+    let mut best = [(f64::MAX, 0.0); 2];
+    for di in -1..=1 {
+        for dj in -1..=1 {
+            let (i, j) = (ci + di, cj + dj);
+            let (px, py) = (
+                (i as f64 + hash(i, j, 1)) * CELL,
+                (j as f64 + hash(i, j, 2)) * CELL,
+            );
+            let d = ((u - px).powi(2) + (v - py).powi(2)).sqrt();
+            let q = hash(i, j, 3);
+            if d < best[0].0 {
+                best[1] = best[0];
+                best[0] = (d, q);
+            } else if d < best[1].0 {
+                best[1] = (d, q);
+            }
+        }
+    }
+    // Blend across a ~3 unit wide edge.
+    let s = ((best[1].0 - best[0].0) / 3.0).tanh();
+    best[0].1 * (0.5 + 0.5 * s) + best[1].1 * (0.5 - 0.5 * s)
+}
+
+/// A camera gliding over a plane (translation ~2·speed px/frame, slow rotation and zoom)
+/// under the given exposure program, scene and vignetting law.
+pub fn render_ae_video(cam: &SynthCamera, frames: usize, video: &AeVideo) -> AeSequence {
+    let tex = Texture::new(cam.seed, video.mid, video.stops);
     let mut rng = Rng::new(cam.seed ^ 0xAE5E);
+    let mut prog_rng = Rng::new(cam.seed ^ 0x5EED);
     let (cx, cy) = (cam.width as f64 / 2.0, cam.height as f64 / 2.0);
+    let vm = cam.vignette_model();
+    let vig = |x: f64, y: f64| match video.vignette {
+        VignetteForm::Polynomial => vm.eval(x, y),
+        VignetteForm::Cos4 { corner_deg } => {
+            let t = vm.r2(x, y).sqrt() * corner_deg.to_radians().tan();
+            t.atan().cos().powi(4)
+        }
+    };
+    let vignette_map: Vec<f32> = (0..cam.height)
+        .flat_map(|y| (0..cam.width).map(move |x| (x as f64, y as f64)))
+        .map(|(x, y)| vig(x, y) as f32)
+        .collect();
+    let radiance = |u: f64, v: f64| match video.scene {
+        SceneForm::Waves => tex.radiance(u, v),
+        SceneForm::Patches => video.mid * (video.stops * (patches(cam.seed, u, v) - 0.5)).exp2(),
+    };
     let mut e = E_START;
     let mut out = AeSequence {
         frames: Vec::with_capacity(frames),
         exposures: Vec::with_capacity(frames),
         timestamps: Vec::with_capacity(frames),
+        vignette_map,
     };
     for k in 0..frames {
         let t = k as f64;
-        let (tx, ty) = (200.0 + 2.0 * t, 300.0 + 25.0 * (0.02 * t).sin());
+        let (tx, ty) = (
+            200.0 + 2.0 * video.speed * t,
+            300.0 + 25.0 * (0.02 * video.speed * t).sin(),
+        );
         let th = 0.15 * (0.013 * t).sin();
         let sc = 1.0 + 0.15 * (0.017 * t).sin();
         let (c, s) = (th.cos() * sc, th.sin() * sc);
-        let img = cam.form(&mut rng, |x, y| {
-            let (px, py) = (x - cx, y - cy);
-            e * tex.radiance(c * px - s * py + tx, s * px + c * py + ty)
-        });
-        // Auto exposure on the mean of the frame just taken.
+        let img = cam.form_with(
+            &mut rng,
+            |x, y| {
+                let (px, py) = (x - cx, y - cy);
+                e * radiance(c * px - s * py + tx, s * px + c * py + ty)
+            },
+            vig,
+        );
         let mean = img.data.iter().map(|&v| f64::from(v)).sum::<f64>()
             / (img.data.len() as f64 * f64::from(img.max_level));
         out.frames.push(img);
         out.exposures.push(e / E_START);
         out.timestamps.push(t / 20.0);
-        let target = 0.43;
-        let ratio = (target / mean.max(1e-3)).powf(0.6);
-        e = (e * ratio * (1.0 + 0.05 * rng.normal())).clamp(0.05, 40.0);
+        e = match &video.program {
+            ExposureProgram::AutoExposure {
+                target,
+                gain,
+                flicker,
+            } => {
+                let ratio = (target / mean.max(1e-3)).powf(*gain);
+                (e * ratio * (1.0 + flicker * rng.normal())).clamp(0.05, 40.0)
+            }
+            ExposureProgram::Sweep {
+                stops,
+                period,
+                flicker,
+            } => {
+                let phase = std::f64::consts::TAU * (t + 1.0) / period.max(2.0);
+                E_START
+                    * (stops * phase.sin()).exp2()
+                    * (1.0 + flicker * prog_rng.normal()).max(0.5)
+            }
+            ExposureProgram::Steps { stops, hold } => {
+                if (k + 1) % (*hold).max(1) == 0 {
+                    E_START * (stops * (2.0 * prog_rng.uniform() - 1.0)).exp2()
+                } else {
+                    e
+                }
+            }
+        };
     }
     out
 }

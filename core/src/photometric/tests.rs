@@ -342,7 +342,7 @@ fn params_serde_and_validation() {
     assert_eq!(p.max_features, 200);
     assert!(serde_json::from_str::<OnlineParams>(r#"{"nope": 1}"#).is_err());
     let bad = OnlineParams {
-        gamma_gauge: 1.5,
+        gamma_gauge: Some(1.5),
         ..OnlineParams::default()
     };
     assert!(bad.validate().is_err());

@@ -11,8 +11,9 @@
 //! 3. Joint Huber Levenberg-Marquardt over response (EMoR-4), vignetting (`v1..v3`),
 //!    exposures and radiances ([`super::joint`]), with the gauge fixed explicitly: exposure 0 is
 //!    1 and `f(0.5) = gamma_gauge` (default 0.5, i.e. `f⁻¹(0.5) = 0.5`), so results are unique
-//!    and repeatable.
+//!    and repeatable; with `gamma_gauge: null` the value is chosen from the data ([`gauge`]).
 
+mod gauge;
 pub(crate) mod klt;
 
 use serde::{Deserialize, Serialize};
@@ -47,8 +48,12 @@ pub struct OnlineParams {
     pub high_cut: f64,
     /// Fit the vignetting (otherwise `V = 1`).
     pub fit_vignette: bool,
-    /// γ gauge: the fitted response satisfies `f(0.5) = gamma_gauge`.
-    pub gamma_gauge: f64,
+    /// γ gauge: `Some(m)` (default 0.5) makes the fitted response satisfy `f(0.5) = m`;
+    /// `null` chooses `m` from the data by profiling the robust cost (experimental: the member
+    /// of the exponential family that EMoR-4 represents best, since a fixed value can keep
+    /// EMoR-4 from following a strongly concave response; not yet validated by the sweep, see
+    /// `examples/photometric_sweep.rs`).
+    pub gamma_gauge: Option<f64>,
     /// Huber threshold in 8-bit levels.
     pub huber_levels: f64,
     /// Joint refinement iteration limit.
@@ -68,7 +73,7 @@ impl Default for OnlineParams {
             low_cut: 3.0 / 255.0,
             high_cut: 250.0 / 255.0,
             fit_vignette: true,
-            gamma_gauge: 0.5,
+            gamma_gauge: Some(0.5),
             huber_levels: 3.0,
             max_iterations: 40,
             max_points: 6000,
@@ -100,7 +105,7 @@ impl OnlineParams {
                 "need 0 ≤ low_cut < high_cut ≤ 1",
             ));
         }
-        if !(self.gamma_gauge > 0.05 && self.gamma_gauge < 0.95) {
+        if self.gamma_gauge.is_some_and(|m| !(m > 0.05 && m < 0.95)) {
             return Err(CoreError::param("gamma_gauge", "must be in (0.05, 0.95)"));
         }
         if !(self.huber_levels.is_finite() && self.huber_levels > 0.0) {
@@ -165,6 +170,26 @@ pub fn photometric_online(
 ) -> CoreResult<OnlineResult> {
     params.validate()?;
     let (w, h) = check_stack(frames, 3)?;
+    let seen = observe(frames, params, w, h, progress)?;
+    fit(frames.len(), w, h, seen, params, progress)
+}
+
+/// Samples of tracked scene points, sorted by point (renumbered densely) then frame.
+pub(crate) struct Observations {
+    pub obs: Vec<Obs>,
+    pub n_points: u32,
+    pub used_tracks: usize,
+    pub mean_len: f64,
+}
+
+/// Track features through the video and sample them.
+pub(crate) fn observe(
+    frames: &[PhotoImage],
+    params: &OnlineParams,
+    w: usize,
+    h: usize,
+    progress: &dyn Progress,
+) -> CoreResult<Observations> {
     let vig0 = VignetteModel::centered(w, h, [0.0; 3]);
     let cfg = KltConfig {
         half_window: params.half_window as i32,
@@ -323,7 +348,29 @@ pub fn photometric_online(
             obs.len()
         )));
     }
-    let nf = frames.len();
+    Ok(Observations {
+        obs,
+        n_points,
+        used_tracks,
+        mean_len,
+    })
+}
+
+/// Exposures, then the joint refinement, from the observations.
+fn fit(
+    nf: usize,
+    w: usize,
+    h: usize,
+    seen: Observations,
+    params: &OnlineParams,
+    progress: &dyn Progress,
+) -> CoreResult<OnlineResult> {
+    let Observations {
+        obs,
+        n_points,
+        used_tracks,
+        mean_len,
+    } = seen;
     // Frame-to-frame exposure ratios under the mean response.
     let g0 = ResponseModel::default().inverse(4096);
     let lg = |o: &Obs| g0.eval(f64::from(o.value)).max(1e-6).ln();
@@ -378,14 +425,42 @@ pub fn photometric_online(
         progress,
     )?;
     let initial: Vec<f64> = state.log_e.iter().map(|l| l.exp()).collect();
-    gauge_start(&mut state, params.gamma_gauge);
+    let gamma_gauge = match params.gamma_gauge {
+        Some(m) => {
+            gauge_start(&mut state, m);
+            m
+        }
+        None => {
+            let choice = gauge::choose_gauge(
+                &obs,
+                n_points as usize,
+                &state,
+                huber,
+                params.fit_vignette,
+                progress,
+            )?;
+            // Radiances of the points left out of the profile: the start's, moved to the
+            // chosen gauge.
+            gauge_start(&mut state, choice.gauge);
+            let every = (n_points as usize).div_ceil(gauge::PROFILE_POINTS).max(1);
+            for (i, l) in state.log_l.iter_mut().enumerate() {
+                if i % every == 0 {
+                    *l = choice.state.log_l[i];
+                }
+            }
+            state.c = choice.state.c;
+            state.v = choice.state.v;
+            state.log_e = choice.state.log_e;
+            choice.gauge
+        }
+    };
     let rep = refine(
         &obs,
         &JointConfig {
             fit_response: true,
             fit_vignette: params.fit_vignette,
             fit_exposures: true,
-            gamma_gauge: Some(params.gamma_gauge),
+            gamma_gauge: Some(gamma_gauge),
             huber,
             max_iterations: params.max_iterations,
             label: "refine",
