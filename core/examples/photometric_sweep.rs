@@ -115,7 +115,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
             },
             _ => video.program,
         };
-        if i % 2 == 0 {
+        if i.is_multiple_of(2) {
             video.scene = SceneForm::Patches;
         }
         if i % 4 < 2 {

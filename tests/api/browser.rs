@@ -487,17 +487,29 @@ async fn seed_devices(s: &TestServer, n: usize) {
     let rows = (0..n).flat_map(|i| {
         let serial = format!("dev-{i:05}");
         [
-            ("cam0", "camera_calibration", json!({"rms": 0.2 + (i % 7) as f64 * 0.1, "coverage": 0.7})),
+            (
+                "cam0",
+                "camera_calibration",
+                json!({"rms": 0.2 + (i % 7) as f64 * 0.1, "coverage": 0.7}),
+            ),
             ("imu0", "imu_noise", json!({"warnings": i % 3})),
         ]
         .map(|(sensor, kind, quality)| {
             let body = json!({"schema": "seed", "kind": kind, "device": serial, "sensor": sensor,
                               "quality": quality, "parameters": {}});
-            (serial.clone(), sensor, kind, format!("e{i}"), body.to_string())
+            (
+                serial.clone(),
+                sensor,
+                kind,
+                format!("e{i}"),
+                body.to_string(),
+            )
         })
     });
     if let Some(db) = &s.db {
-        let mut conn = sqlx::PgConnection::connect(&db.url).await.expect("open store");
+        let mut conn = sqlx::PgConnection::connect(&db.url)
+            .await
+            .expect("open store");
         let mut tx = conn.begin().await.expect("tx");
         for (serial, sensor, kind, etag, body) in rows {
             sqlx::query(

@@ -20,11 +20,7 @@ fn vm_hwm_mib(pid: u32) -> f64 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_burst_gets_fast_429s_and_the_service_recovers() {
     let data = tempfile::tempdir().expect("data");
-    let p = spawn_caliper(
-        &caliper_bin(),
-        data.path(),
-        &["--max-queued-jobs", "20"],
-    );
+    let p = spawn_caliper(&caliper_bin(), data.path(), &["--max-queued-jobs", "20"]);
     let base = p.base.clone();
     let c = reqwest::Client::builder()
         .timeout(Duration::from_secs(30))
@@ -111,7 +107,10 @@ async fn a_burst_gets_fast_429s_and_the_service_recovers() {
             let j: Value = r.json().await.expect("json");
             break j["id"].as_str().expect("id").to_owned();
         }
-        assert!(start.elapsed() < Duration::from_secs(120), "never recovered");
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "never recovered"
+        );
         tokio::time::sleep(Duration::from_millis(200)).await;
     };
     let start = Instant::now();
