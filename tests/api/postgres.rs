@@ -213,7 +213,7 @@ async fn three_replicas_share_one_store_and_run_each_job_once() {
         .zip(s3_url.as_deref())
         .map(|((endpoint, _), url)| (url, endpoint.as_str()));
     let reps: Vec<_> = (0..3)
-        .map(|_| replica_s3(&db, blobs.path(), target, &[]))
+        .map(|_| replica_s3(&db, blobs.path(), target, &["--max-queued-jobs", "5000"]))
         .collect();
     let bases: Vec<String> = reps.iter().map(|(p, _)| p.base.clone()).collect();
     let api = Api {
@@ -225,23 +225,56 @@ async fn three_replicas_share_one_store_and_run_each_job_once() {
     let ds = api
         .upload(&bases[0], vec![("a.png".into(), png(&sharp_image(96, 72)))])
         .await;
-    let n = 30;
-    let mut ids = Vec::new();
-    for i in 0..n {
-        let (st, j) = api
-            .post(
-                &bases[i % 3],
-                "/v1/jobs",
-                &json!({"kind": "blur_score", "dataset": ds, "device": "cam-pg", "sensor": "cam0"}),
-            )
-            .await;
-        assert_eq!(st, 202, "{j}");
-        ids.push(j["id"].as_str().expect("id").to_owned());
+    // 1,000 jobs from 20 concurrent clients, each client on its own replica in turn.
+    let n = 1000;
+    let clients = 20;
+    let mut tasks = Vec::new();
+    for k in 0..clients {
+        let (bases, ds) = (bases.clone(), ds.clone());
+        let (client, token) = (api.client.clone(), api.token.clone());
+        tasks.push(tokio::spawn(async move {
+            let mut ids = Vec::new();
+            for i in 0..n / clients {
+                let base = &bases[(k + i) % 3];
+                let r = client
+                    .post(format!("{base}/v1/jobs"))
+                    .bearer_auth(&token)
+                    .json(&json!({"kind": "blur_score", "dataset": ds, "device": "cam-pg", "sensor": "cam0"}))
+                    .send()
+                    .await
+                    .expect("post");
+                assert_eq!(r.status(), 202);
+                let j: Value = r.json().await.expect("json");
+                ids.push(j["id"].as_str().expect("id").to_owned());
+            }
+            ids
+        }));
     }
+    let mut ids = Vec::new();
+    for t in tasks {
+        ids.extend(t.await.expect("client"));
+    }
+    // A client on one replica follows a job over SSE to its end, whichever replica runs it.
+    let followed = ids[n - 1].clone();
+    let sse = api
+        .client
+        .get(format!("{}/v1/jobs/{followed}/events", bases[0]))
+        .bearer_auth(&api.token)
+        .send()
+        .await
+        .expect("events");
+    let stream_text = tokio::time::timeout(Duration::from_secs(300), sse.text())
+        .await
+        .expect("the event stream ends with the job")
+        .expect("stream");
+    assert!(
+        stream_text.contains("\"succeeded\""),
+        "no terminal event: {stream_text}"
+    );
     let mut revs = Vec::new();
     for (i, id) in ids.iter().enumerate() {
         let j = api
-            .wait_terminal(&bases[(i + 2) % 3], id, Duration::from_secs(120))
+            .wait_terminal(&bases[(i + 2) % 3], id, Duration::from_secs(300))
             .await;
         assert_eq!(j["status"], "succeeded", "{j}");
         assert_eq!(j["attempt"], 1, "ran once: {j}");
