@@ -147,7 +147,7 @@ pub async fn get_dataset(
     params(("id" = Uuid, Path, description = "Dataset id"),
            ("index" = u32, Path, description = "Position of the file in the dataset's `files`, from 0")),
     responses(
-        (status = 200, description = "The file", content_type = "application/octet-stream", body = Vec<u8>),
+        (status = 200, description = "The file, with the media type found at upload", content_type = "*/*", body = Vec<u8>),
         (status = 404, description = "No such dataset or file", body = Problem, content_type = "application/problem+json"),
     )
 )]

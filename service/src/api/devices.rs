@@ -24,10 +24,13 @@ pub fn router() -> OpenApiRouter<AppState> {
 #[into_params(parameter_in = Query)]
 pub struct DeviceListQuery {
     /// Page size, 1–100 (default 20).
+    #[param(minimum = 1, maximum = 100)]
     pub limit: Option<u32>,
-    /// `next_cursor` of the previous page.
+    /// `next_cursor` of the previous page (a serial).
+    #[param(pattern = r"^[A-Za-z0-9._-]{1,128}$")]
     pub cursor: Option<String>,
-    /// Only serials containing this text (case-insensitive), 1–128 characters.
+    /// Only serials containing this text (case-insensitive), at most 128 characters.
+    #[param(max_length = 128)]
     pub q: Option<String>,
 }
 
@@ -63,7 +66,8 @@ pub async fn list_devices(
     ApiQuery(q): ApiQuery<DeviceListQuery>,
 ) -> ApiResult<axum::Json<DevicePage>> {
     let limit = super::page_limit(q.limit)?;
-    if let Some(c) = &q.cursor
+    let cursor = q.cursor.clone();
+    if let Some(c) = &cursor
         && !super::jobs::valid_name(c)
     {
         return Err(ApiError::new(
@@ -74,12 +78,10 @@ pub async fn list_devices(
     }
     let search = match q.q.as_deref().map(str::trim) {
         None | Some("") => None,
-        Some(s) if s.chars().count() > 128 || s.chars().any(char::is_control) => {
-            return Err(ApiError::new(
-                "invalid_query",
-                "q must be at most 128 printable characters",
-            )
-            .with_field("q"));
+        Some(s) if s.chars().count() > 128 => {
+            return Err(
+                ApiError::new("invalid_query", "q must be at most 128 characters").with_field("q"),
+            );
         }
         Some(s) => Some(s.to_owned()),
     };
@@ -87,7 +89,7 @@ pub async fn list_devices(
     let rows = store
         .list_devices(&DeviceQuery {
             search: search.clone(),
-            after: q.cursor.clone(),
+            after: cursor,
             limit: limit + 1,
             only: who.devices.clone(),
         })

@@ -75,8 +75,10 @@ pub struct RevisionDiff {
 #[into_params(parameter_in = Query)]
 pub struct DiffQuery {
     /// The older revision, from 1.
+    #[param(minimum = 1, maximum = 9223372036854775807_u64)]
     pub from: u64,
     /// The newer revision, from 1.
+    #[param(minimum = 1, maximum = 9223372036854775807_u64)]
     pub to: u64,
 }
 

@@ -597,7 +597,7 @@ pub async fn list_artifacts(
     get, path = "/v1/jobs/{id}/artifacts/{name}", tag = "jobs",
     params(("id" = Uuid, Path, description = "Job id"), ("name" = String, Path, description = "Artifact name")),
     responses(
-        (status = 200, description = "The artifact, with its media type", content_type = "application/octet-stream", body = Vec<u8>),
+        (status = 200, description = "The artifact, with its media type", content_type = "*/*", body = Vec<u8>),
         (status = 404, description = "No such job or artifact", body = Problem, content_type = "application/problem+json"),
     )
 )]

@@ -80,6 +80,8 @@ pub struct CreatedToken {
     post, path = "/v1/tokens", tag = "tokens", request_body = CreateTokenRequest,
     responses(
         (status = 201, description = "Created; `token` is the secret, shown once", body = CreatedToken),
+        (status = 400, description = "Malformed JSON", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Not JSON", body = Problem, content_type = "application/problem+json"),
         (status = 422, description = "Invalid name, scope or devices", body = Problem, content_type = "application/problem+json"),
     )
 )]
