@@ -52,14 +52,17 @@ struct Leaf {
 pub fn diff(from: &Value, to: &Value) -> Vec<DiffEntry> {
     let a = leaves(from);
     let b = leaves(to);
+    // Paths are looked up by map, not by scanning: documents can have thousands of leaves.
+    let in_a: std::collections::HashSet<&str> = a.iter().map(|(p, _)| p.as_str()).collect();
+    let in_b: std::collections::HashMap<&str, &Leaf> =
+        b.iter().map(|(p, l)| (p.as_str(), l)).collect();
     let mut out = Vec::new();
     // Keep the older document's order, then what only the newer one has.
     for (path, la) in &a {
-        let lb = b.iter().find(|(p, _)| p == path).map(|(_, l)| l);
-        out.push(entry(path, Some(la), lb));
+        out.push(entry(path, Some(la), in_b.get(path.as_str()).copied()));
     }
     for (path, lb) in &b {
-        if !a.iter().any(|(p, _)| p == path) {
+        if !in_a.contains(path.as_str()) {
             out.push(entry(path, None, Some(lb)));
         }
     }
