@@ -18,6 +18,7 @@ pub mod optim;
 pub mod photometric;
 mod plot_axis;
 pub mod progress;
+pub mod rig;
 pub mod synth;
 #[cfg(test)]
 mod test_env;

@@ -146,3 +146,79 @@ pub fn kalibr_imu_yaml(doc: &Value) -> Result<String, ExportError> {
     caliper_core::export::kalibr_imu_yaml(&values)
         .map_err(|e| ExportError::Unavailable(e.to_string()))
 }
+
+/// The rig document's exports: OpenCV stereo YAML (two cameras), ROS `CameraInfo` with
+/// rectification for the first cameras, Kalibr's camchain for every camera, and JSON.
+pub const RIG_EXPORTS: &[Export] = &[
+    Export {
+        format: "opencv-yaml",
+        media_type: caliper_core::export::YAML_MEDIA_TYPE,
+        render: |d| {
+            let rig = rig_of(d)?;
+            caliper_core::export::rig_opencv_stereo_yaml(&rig, d["created_at"].as_str())
+                .map_err(|e| ExportError::Unavailable(e.to_string()))
+        },
+    },
+    Export {
+        format: "ros-yaml-cam0",
+        media_type: caliper_core::export::YAML_MEDIA_TYPE,
+        render: |d| rig_ros(d, 0),
+    },
+    Export {
+        format: "ros-yaml-cam1",
+        media_type: caliper_core::export::YAML_MEDIA_TYPE,
+        render: |d| rig_ros(d, 1),
+    },
+    Export {
+        format: "ros-yaml-cam2",
+        media_type: caliper_core::export::YAML_MEDIA_TYPE,
+        render: |d| rig_ros(d, 2),
+    },
+    Export {
+        format: "ros-yaml-cam3",
+        media_type: caliper_core::export::YAML_MEDIA_TYPE,
+        render: |d| rig_ros(d, 3),
+    },
+    Export {
+        format: "kalibr-yaml",
+        media_type: caliper_core::export::YAML_MEDIA_TYPE,
+        render: |d| {
+            let rig = rig_of(d)?;
+            let topics: Vec<String> = rig
+                .cameras
+                .iter()
+                .map(|c| format!("/{}/image_raw", c.name))
+                .collect();
+            caliper_core::export::rig_kalibr_camchain(&rig, &topics)
+                .map_err(|e| ExportError::Unavailable(e.to_string()))
+        },
+    },
+    Export {
+        format: "json",
+        media_type: "application/json",
+        render: |d| {
+            serde_json::to_string_pretty(&d["parameters"]["rig"])
+                .map_err(|e| ExportError::Corrupt(e.to_string()))
+        },
+    },
+];
+
+fn rig_of(doc: &Value) -> Result<caliper_core::rig::RigCalibration, ExportError> {
+    serde_json::from_value(doc["parameters"]["rig"].clone())
+        .map_err(|e| ExportError::Corrupt(e.to_string()))
+}
+
+fn rig_ros(doc: &Value, index: usize) -> Result<String, ExportError> {
+    let rig = rig_of(doc)?;
+    let cam = rig
+        .cameras
+        .get(index)
+        .map(|c| c.name.clone())
+        .unwrap_or_default();
+    let name = match (doc["device"].as_str(), doc["sensor"].as_str()) {
+        (Some(d), Some(s)) => format!("{d}/{s}/{cam}"),
+        _ => cam,
+    };
+    caliper_core::export::rig_ros_yaml(&rig, index, &name)
+        .map_err(|e| ExportError::Unavailable(e.to_string()))
+}

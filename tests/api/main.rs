@@ -24,4 +24,5 @@ mod postgres;
 mod readme;
 mod recovery;
 mod registry;
+mod rig;
 mod s3;

@@ -32,8 +32,23 @@ fn list(values: &[f64]) -> String {
 
 pub(super) fn write(input: &ExportInput<'_>) -> CoreResult<String> {
     let c = input.calibration;
-    let p = c.camera.params();
-    let (camera_model, intrinsics, distortion_model, coeffs) = match &c.camera {
+    let topic = input.rostopic.unwrap_or(DEFAULT_ROSTOPIC);
+    Ok(format!(
+        "{}  cam_overlaps: []\n",
+        camera_entry("cam0", &c.camera, c.image_size, topic)?
+    ))
+}
+
+/// The `camN:` mapping of one camera, up to (not including) `T_cn_cnm1` and `cam_overlaps`,
+/// which only a camera chain has.
+pub(super) fn camera_entry(
+    key: &str,
+    camera: &Camera,
+    image_size: [u32; 2],
+    topic: &str,
+) -> CoreResult<String> {
+    let p = camera.params();
+    let (camera_model, intrinsics, distortion_model, coeffs) = match camera {
         Camera::PinholeRadTan(m) => {
             let [k1, k2, p1, p2, k3] = m.distortion();
             if k3 != 0.0 {
@@ -56,16 +71,20 @@ pub(super) fn write(input: &ExportInput<'_>) -> CoreResult<String> {
             Vec::new(),
         ),
     };
-    let topic = input.rostopic.unwrap_or(DEFAULT_ROSTOPIC);
-    let [w, h] = c.image_size;
+    let [w, h] = image_size;
     Ok(format!(
-        "cam0:\n  camera_model: {camera_model}\n  intrinsics: {}\n  distortion_model: \
+        "{key}:\n  camera_model: {camera_model}\n  intrinsics: {}\n  distortion_model: \
          {distortion_model}\n  distortion_coeffs: {}\n  resolution: [{w}, {h}]\n  rostopic: \
-         {}\n  cam_overlaps: []\n",
+         {}\n",
         list(&intrinsics),
         list(&coeffs),
         yaml::quote("rostopic", topic)?
     ))
+}
+
+/// A flow list of numbers, as Kalibr writes them.
+pub(super) fn number_list(values: &[f64]) -> String {
+    list(values)
 }
 
 /// Reads `cam0` of a Kalibr camchain (see [`read_kalibr_camchain`] for every camera).

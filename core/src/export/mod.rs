@@ -34,6 +34,7 @@ mod json;
 mod kalibr;
 mod kalibr_imu;
 mod opencv;
+mod rig;
 mod ros;
 mod yaml;
 
@@ -53,6 +54,7 @@ pub use json::{
 pub use kalibr::{read_kalibr_camchain, read_kalibr_yaml};
 pub use kalibr_imu::{KalibrImuValues, kalibr_imu_yaml};
 pub use opencv::read_opencv_yaml;
+pub use rig::{rig_kalibr_camchain, rig_opencv_stereo_yaml, rig_ros_yaml};
 pub use ros::read_ros_yaml;
 pub use yaml::yaml_number;
 

@@ -103,7 +103,14 @@ fn flags(fixed: &Fixed, fisheye: bool) -> (i64, Vec<&'static str>) {
 }
 
 /// Appends an `!!opencv-matrix` block.
-fn matrix(out: &mut String, key: &str, rows: usize, cols: usize, dt: char, data: &[String]) {
+pub(super) fn matrix(
+    out: &mut String,
+    key: &str,
+    rows: usize,
+    cols: usize,
+    dt: char,
+    data: &[String],
+) {
     out.push_str(&format!(
         "{key}: {}\n   rows: {rows}\n   cols: {cols}\n   dt: {dt}\n   data: {}\n",
         yaml::OPENCV_MATRIX_TAG,

@@ -12,7 +12,7 @@ use crate::error::{CoreError, CoreResult};
 
 const FMT: &str = "ros-yaml";
 
-fn matrix(out: &mut String, key: &str, rows: usize, cols: usize, data: &[f64]) {
+pub(super) fn matrix(out: &mut String, key: &str, rows: usize, cols: usize, data: &[f64]) {
     let items: Vec<String> = data.iter().map(|v| fmt_f64(*v, NanStyle::Yaml)).collect();
     out.push_str(&format!(
         "{key}:\n  rows: {rows}\n  cols: {cols}\n  data: {}\n",

@@ -159,18 +159,7 @@ impl Kind for CameraCalibration {
     }
 
     fn cli_params(a: &CameraCalibrationArgs, _: &CliContext<'_>) -> Result<Value, RunError> {
-        let (cols, rows) = a
-            .board
-            .split_once(['x', 'X'])
-            .and_then(|(c, r)| {
-                Some((
-                    c.trim().parse::<usize>().ok()?,
-                    r.trim().parse::<usize>().ok()?,
-                ))
-            })
-            .ok_or_else(|| {
-                RunError::Input(format!("--board must be COLSxROWS, got {:?}", a.board))
-            })?;
+        let (cols, rows) = board_flag(&a.board)?;
         let mut params = json!({"board": {"cols": cols, "rows": rows, "square": a.square}});
         if let Some(u) = &a.unit {
             params["board"]["unit"] = json!(u);
@@ -302,11 +291,31 @@ impl Kind for CameraCalibration {
 }
 
 fn board_geometry(p: &CameraCalibParams) -> BoardGeometry {
-    BoardGeometry {
-        cols: p.board.cols,
-        rows: p.board.rows,
-        square: p.board.square,
+    p.board.geometry()
+}
+
+impl BoardParams {
+    /// The board as core describes it (the unit only labels the document).
+    pub fn geometry(&self) -> BoardGeometry {
+        BoardGeometry {
+            cols: self.cols,
+            rows: self.rows,
+            square: self.square,
+        }
     }
+}
+
+/// `--board COLSxROWS` of the CLI.
+pub(super) fn board_flag(board: &str) -> Result<(usize, usize), RunError> {
+    board
+        .split_once(['x', 'X'])
+        .and_then(|(c, r)| {
+            Some((
+                c.trim().parse::<usize>().ok()?,
+                r.trim().parse::<usize>().ok()?,
+            ))
+        })
+        .ok_or_else(|| RunError::Input(format!("--board must be COLSxROWS, got {board:?}")))
 }
 
 fn permanent(code: &'static str, message: impl Into<String>) -> JobError {

@@ -12,6 +12,7 @@ pub mod document;
 pub mod imu;
 pub mod kind;
 pub mod photometric;
+pub mod rig_calibration;
 pub mod worker;
 
 use std::sync::Arc;
@@ -118,6 +119,7 @@ pub fn kinds() -> &'static [&'static dyn JobKind] {
         &Registered(photometric::PhotometricOnline),
         &Registered(photometric::PhotometricCorrect),
         &Registered(deblur::Deblur),
+        &Registered(rig_calibration::RigCalibration),
     ];
     KINDS
 }

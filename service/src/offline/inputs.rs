@@ -37,16 +37,34 @@ pub(super) fn image_files(
     let limits = crate::config::Config::default().image_limits();
     let mut files = Vec::new();
     let mut names = std::collections::HashSet::new();
+    // Files of several directories keep their directory's name (`cam0/0001.png`), as the
+    // entries of a zip do: a rig has one directory per camera, with the same file names.
+    let dir_of = |p: &PathBuf| {
+        p.parent()
+            .and_then(|d| d.file_name())
+            .map(|d| d.to_string_lossy().into_owned())
+    };
+    let dirs: std::collections::HashSet<Option<String>> = paths
+        .iter()
+        .filter(|(_, d)| *d)
+        .map(|(p, _)| dir_of(p))
+        .collect();
     for (p, from_dir) in paths {
         let bytes = std::fs::read(p)?;
         if *from_dir && !caliper_core::io::sniff(&bytes[..bytes.len().min(64)]).is_image() {
             eprintln!("caliper: skipping {} (not an image)", p.display());
             continue;
         }
-        let name = p
+        let mut name = p
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| p.display().to_string());
+        if *from_dir
+            && dirs.len() > 1
+            && let Some(d) = dir_of(p)
+        {
+            name = format!("{d}/{name}");
+        }
         if !names.insert(name.clone()) {
             return Err(RunError::Input(format!("two inputs are named {name:?}")));
         }
