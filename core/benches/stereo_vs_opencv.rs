@@ -21,7 +21,7 @@ use std::time::Instant;
 use caliper_core::NoProgress;
 use caliper_core::board::{DetectOptions, Detection, detect_chessboard};
 use caliper_core::calib::{BoardGeometry, ModelKind, ViewObservations};
-use caliper_core::camera::{Camera, PinholeRadTan};
+use caliper_core::camera::{Camera, CameraModel, PinholeRadTan};
 use caliper_core::io::{ImageLimits, decode_gray8};
 use caliper_core::lie::{Se3, So3};
 use caliper_core::rig::{
@@ -89,10 +89,11 @@ fn rig_inputs(
         .collect()
 }
 
+/// One camera's views, frame by frame.
+type Views = Vec<Option<ViewObservations>>;
+
 /// Corners from the shared JSON file (`corners.left[name]`, `corners.right[name]`).
-fn shared_corners(
-    data: &Path,
-) -> Option<(Vec<Option<ViewObservations>>, Vec<Option<ViewObservations>>)> {
+fn shared_corners(data: &Path) -> Option<(Views, Views)> {
     let text = std::fs::read_to_string(data.join("camera/corners/opencv_stereo.json")).ok()?;
     let v: Value = serde_json::from_str(&text).ok()?;
     let side = |s: &str| -> Vec<Option<ViewObservations>> {
@@ -306,6 +307,30 @@ fn report(
         "| frames used | {} | |",
         rig.frames.iter().filter(|f| f.used).count()
     );
+    println!(
+        "| corners used / rejected | {} / {} | |",
+        rig.corners_used, rig.corners_rejected
+    );
+    for (c, pk) in rig.cameras.iter().zip(&peer.k) {
+        let p = c.camera.params();
+        let q = pk.params();
+        println!(
+            "| {} fx fy cx cy k1 | {:.2} {:.2} {:.2} {:.2} {:.4} (mono RMS {:.4}, joint {:.4}) | {:.2} {:.2} {:.2} {:.2} {:.4} |",
+            c.name,
+            p[0],
+            p[1],
+            p[2],
+            p[3],
+            p[4],
+            c.mono_rms.unwrap_or(f64::NAN),
+            c.rms,
+            q[0],
+            q[1],
+            q[2],
+            q[3],
+            q[4]
+        );
+    }
 }
 
 fn main() {
@@ -329,7 +354,45 @@ fn main() {
         )
         .expect("rig");
         match run_peer(&data, true, 1) {
-            Ok(peer) => report("same corners (OpenCV's detections)", &rig, &peer, &l, &r),
+            Ok(peer) => {
+                report("same corners (OpenCV's detections)", &rig, &peer, &l, &r);
+                // The same problem as OpenCV's `stereoCalibrate(CALIB_FIX_INTRINSIC)`: its
+                // intrinsics held fixed, plain least squares, no rejection.
+                let plain = RigOptions {
+                    loss: caliper_core::optim::RobustLoss::None,
+                    reject_outliers: false,
+                    ..RigOptions::default()
+                };
+                let mut inputs = rig_inputs(l.clone(), r.clone());
+                for (i, k) in inputs.iter_mut().zip(&peer.k) {
+                    i.fixed = Some(k.clone().into());
+                }
+                let fixed = calibrate_rig(&inputs, &BOARD, &plain, &NoProgress).expect("rig");
+                report(
+                    "same corners, OpenCV's intrinsics fixed, plain least squares (solver check)",
+                    &fixed,
+                    &peer,
+                    &l,
+                    &r,
+                );
+                let mut plain_free = plain;
+                plain_free.camera.reject_outliers = false;
+                plain_free.camera.loss = caliper_core::optim::RobustLoss::None;
+                let free = calibrate_rig(
+                    &rig_inputs(l.clone(), r.clone()),
+                    &BOARD,
+                    &plain_free,
+                    &NoProgress,
+                )
+                .expect("rig");
+                report(
+                    "same corners, intrinsics free, plain least squares, no rejection",
+                    &free,
+                    &peer,
+                    &l,
+                    &r,
+                );
+            }
             Err(e) => println!("peer failed: {e}"),
         }
     }

@@ -108,7 +108,7 @@ pub fn stereo_rectify(
 ) -> CoreResult<Rectification> {
     let r = t_ba.rotation.matrix();
     let t = t_ba.translation;
-    if !(t.norm() > 0.0) {
+    if t.norm() <= 0.0 || !t.norm().is_finite() {
         return Err(CoreError::NoSolution(
             "the two cameras have the same optical centre: no baseline to rectify".into(),
         ));

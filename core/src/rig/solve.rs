@@ -142,6 +142,7 @@ pub fn calibrate_rig(
         for (k, n) in names.iter().enumerate() {
             let opt = &options.camera;
             fixed[o + k] = inputs[i].fixed.is_some()
+                || !options.refine_intrinsics
                 || (opt.fix_principal_point && (*n == "cx" || *n == "cy"))
                 || (opt.fix_k3 && *n == "k3")
                 || (opt.zero_tangential && (*n == "p1" || *n == "p2"));

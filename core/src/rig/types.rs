@@ -48,6 +48,10 @@ pub struct RigOptions {
     /// Drop corners whose joint residual is an outlier (same thresholds as `camera`) and solve
     /// again.
     pub reject_outliers: bool,
+    /// Refine the intrinsics in the joint solve (default). Off: each camera keeps its own
+    /// calibration and only the extrinsics and board poses move, as OpenCV's
+    /// `stereoCalibrate` with `CALIB_FIX_INTRINSIC`.
+    pub refine_intrinsics: bool,
 }
 
 impl Default for RigOptions {
@@ -57,6 +61,7 @@ impl Default for RigOptions {
             max_iterations: 100,
             loss: RobustLoss::Huber { scale: 1.0 },
             reject_outliers: true,
+            refine_intrinsics: true,
         }
     }
 }
