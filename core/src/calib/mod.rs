@@ -46,7 +46,7 @@ pub use pnp::estimate_pose;
 pub use solve::calibrate;
 pub use types::{
     BoardGeometry, CalibOptions, Calibration, CornerObservation, CornerResidual,
-    MIN_CORNERS_PER_VIEW, MIN_VIEWS, ModelKind, ParameterEstimate, ProjectionUncertainty,
-    RejectedCorner, RejectedView, ViewObservations, ViewResult,
+    MIN_CORNERS_PER_VIEW, MIN_VIEWS, ModelKind, ParameterEstimate, PlanarTarget,
+    ProjectionUncertainty, RejectedCorner, RejectedView, ViewObservations, ViewResult,
 };
 pub use zhang::{Intrinsics, intrinsics_fixed_centre, pose_from_homography, zhang_intrinsics};

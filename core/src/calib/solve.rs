@@ -7,7 +7,7 @@ use super::finish::finish;
 use super::problem::{CalibProblem, ViewData};
 use super::reject::reject;
 use super::types::{
-    BoardGeometry, CalibOptions, Calibration, MIN_CORNERS_PER_VIEW, MIN_VIEWS, ModelKind,
+    CalibOptions, Calibration, MIN_CORNERS_PER_VIEW, MIN_VIEWS, ModelKind, PlanarTarget,
     ViewObservations,
 };
 use super::{init, pnp};
@@ -47,9 +47,9 @@ impl ViewState {
 /// Validates and converts the input views.
 fn parse_views(
     observations: &[ViewObservations],
-    board: &BoardGeometry,
+    board: &dyn PlanarTarget,
 ) -> CoreResult<Vec<ViewState>> {
-    let n = board.num_corners();
+    let n = board.num_points();
     observations
         .iter()
         .map(|view| {
@@ -65,8 +65,10 @@ fn parse_views(
             for c in &view.corners {
                 let Some(x) = board.object_point(c.index) else {
                     return Err(CoreError::input(format!(
-                        "view `{}`: corner index {} outside the {}×{} board",
-                        view.name, c.index, board.cols, board.rows
+                        "view `{}`: corner index {} outside the {}",
+                        view.name,
+                        c.index,
+                        board.describe()
                     )));
                 };
                 if std::mem::replace(&mut seen[c.index], true) {
@@ -97,14 +99,15 @@ fn parse_views(
         .collect()
 }
 
-/// Calibrates one camera from chessboard corners (see the module docs for the method).
+/// Calibrates one camera from the corners of a planar target (see the module docs for the
+/// method).
 ///
 /// Errors: [`CoreError::InvalidInput`] / [`CoreError::InvalidParam`] for malformed input or
 /// options, [`CoreError::NoSolution`] when fewer than [`MIN_VIEWS`] views are usable or the
 /// views do not determine the camera, [`CoreError::Canceled`].
 pub fn calibrate(
     observations: &[ViewObservations],
-    board: &BoardGeometry,
+    board: &dyn PlanarTarget,
     model: ModelKind,
     image_size: (u32, u32),
     options: &CalibOptions,

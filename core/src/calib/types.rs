@@ -118,6 +118,56 @@ impl BoardGeometry {
     }
 }
 
+/// A planar calibration target as the solvers see it: numbered points on the plane z = 0.
+///
+/// Chessboards ([`BoardGeometry`]) and the targets of [`crate::board`] (ChArUco, AprilGrid,
+/// circle grids) implement it, so every solver serves every target.
+pub trait PlanarTarget: Sync {
+    /// Errors unless the target can exist (sizes positive and finite, counts in range).
+    fn validate(&self) -> CoreResult<()>;
+    /// Number of point ids (`0..num_points`).
+    fn num_points(&self) -> usize;
+    /// Board-frame position of point `id`, or `None` for an id the target does not have.
+    fn object_point(&self, id: usize) -> Option<Vector3<f64>>;
+    /// Short description for messages ("9×6 chessboard").
+    fn describe(&self) -> String;
+    /// When a detector cannot tell the target from itself turned by a half-turn (a chessboard
+    /// has no marked corner), the rigid motion of the board plane that maps point k to point
+    /// `num_points − 1 − k`; `None` for targets whose ids are unambiguous.
+    fn half_turn(&self) -> Option<crate::lie::Se3> {
+        None
+    }
+}
+
+impl PlanarTarget for BoardGeometry {
+    fn validate(&self) -> CoreResult<()> {
+        BoardGeometry::validate(self)
+    }
+
+    fn num_points(&self) -> usize {
+        self.num_corners()
+    }
+
+    fn object_point(&self, id: usize) -> Option<Vector3<f64>> {
+        BoardGeometry::object_point(self, id)
+    }
+
+    fn describe(&self) -> String {
+        format!("{}×{} chessboard", self.cols, self.rows)
+    }
+
+    fn half_turn(&self) -> Option<crate::lie::Se3> {
+        Some(crate::lie::Se3::new(
+            crate::lie::So3::exp(&Vector3::new(0.0, 0.0, std::f64::consts::PI)),
+            Vector3::new(
+                (self.cols - 1) as f64 * self.square,
+                (self.rows - 1) as f64 * self.square,
+                0.0,
+            ),
+        ))
+    }
+}
+
 /// One detected corner: its row-major board index and its pixel position.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -13,11 +13,12 @@ use nalgebra::{Vector2, Vector3};
 
 use super::problem::Obs;
 use super::types::{MIN_SHARED_FRAMES, RigCameraInput, RigOptions};
-use crate::calib::{BoardGeometry, MIN_CORNERS_PER_VIEW, ModelKind, ViewObservations};
+use crate::calib::{MIN_CORNERS_PER_VIEW, ModelKind, PlanarTarget, ViewObservations};
 use crate::calib::{calibrate, estimate_pose};
 use crate::camera::Camera;
 use crate::error::{CoreError, CoreResult};
 use crate::lie::{Se3, So3};
+
 use crate::progress::Progress;
 
 /// Rotation (radians) and relative translation within which two relative-pose candidates agree.
@@ -40,27 +41,17 @@ pub(super) struct CameraStart {
     pub views: Vec<Result<CamView, String>>,
 }
 
-/// The half-turn of the board that maps corner k to corner N−1−k.
-fn half_turn(board: &BoardGeometry) -> Se3 {
-    Se3::new(
-        So3::exp(&Vector3::new(0.0, 0.0, std::f64::consts::PI)),
-        Vector3::new(
-            (board.cols - 1) as f64 * board.square,
-            (board.rows - 1) as f64 * board.square,
-            0.0,
-        ),
-    )
-}
-
-fn to_obs(camera: usize, board: &BoardGeometry, v: &ViewObservations) -> CoreResult<Vec<Obs>> {
-    let mut seen = vec![false; board.num_corners()];
+fn to_obs(camera: usize, board: &dyn PlanarTarget, v: &ViewObservations) -> CoreResult<Vec<Obs>> {
+    let mut seen = vec![false; board.num_points()];
     v.corners
         .iter()
         .map(|c| {
             let object = board.object_point(c.index).ok_or_else(|| {
                 CoreError::input(format!(
-                    "view `{}`: corner index {} outside the {}×{} board",
-                    v.name, c.index, board.cols, board.rows
+                    "view `{}`: corner index {} outside the {}",
+                    v.name,
+                    c.index,
+                    board.describe()
                 ))
             })?;
             if std::mem::replace(&mut seen[c.index], true) {
@@ -89,7 +80,7 @@ fn to_obs(camera: usize, board: &BoardGeometry, v: &ViewObservations) -> CoreRes
 pub(super) fn start_camera(
     i: usize,
     input: &RigCameraInput,
-    board: &BoardGeometry,
+    board: &dyn PlanarTarget,
     options: &RigOptions,
     progress: &dyn Progress,
 ) -> CoreResult<CameraStart> {
@@ -213,13 +204,13 @@ fn mean_pose(poses: &[Se3]) -> Se3 {
 pub(super) fn extrinsics(
     starts: &mut [CameraStart],
     names: &[String],
-    board: &BoardGeometry,
+    board: &dyn PlanarTarget,
     warnings: &mut Vec<String>,
 ) -> CoreResult<Vec<Se3>> {
     let n = starts.len();
     let frames = starts[0].views.len();
-    let flip = half_turn(board);
-    let flip_inv = flip.inverse();
+    // Targets with unambiguous ids offer one candidate per frame.
+    let flip_inv = board.half_turn().map(|f| f.inverse());
     let mut known: Vec<Option<Se3>> = vec![None; n];
     known[0] = Some(Se3::identity());
     loop {
@@ -238,27 +229,28 @@ pub(super) fn extrinsics(
         let Some((i, j, shared)) = best else { break };
         let t_j0 = known[j].unwrap_or_else(Se3::identity);
         // Candidates T_i_j per shared frame, as numbered and with i's numbering reversed.
-        let mut cands: Vec<(usize, Se3, Se3)> = Vec::new();
+        let mut cands: Vec<(usize, Se3, Option<Se3>)> = Vec::new();
         for f in 0..frames {
             if let (Ok(vi), Ok(vj)) = (&starts[i].views[f], &starts[j].views[f]) {
                 let inv_j = vj.pose.inverse();
+                let direct = vi.pose.compose(&inv_j);
                 cands.push((
                     f,
-                    vi.pose.compose(&inv_j),
-                    vi.pose.compose(&flip_inv).compose(&inv_j),
+                    direct,
+                    flip_inv.map(|fi| vi.pose.compose(&fi).compose(&inv_j)),
                 ));
             }
         }
         let support = |c: &Se3| {
             cands
                 .iter()
-                .filter(|(_, a, b)| agree(c, a) || agree(c, b))
+                .filter(|(_, a, b)| agree(c, a) || b.as_ref().is_some_and(|b| agree(c, b)))
                 .count()
         };
         let mut winner = cands[0].1;
         let mut top = 0;
         for (_, a, b) in &cands {
-            for c in [a, b] {
+            for c in std::iter::once(a).chain(b.as_ref()) {
                 let s = support(c);
                 if s > top {
                     top = s;
@@ -270,16 +262,18 @@ pub(super) fn extrinsics(
         for (f, a, b) in &cands {
             if agree(&winner, a) {
                 inliers.push(*a);
-            } else if agree(&winner, b) {
+            } else if let (Some(b), Some(fi)) = (b, flip_inv)
+                && agree(&winner, b)
+            {
                 inliers.push(*b);
                 // Renumber camera i's corners in this frame to match the rig.
                 if let Ok(v) = &mut starts[i].views[*f] {
-                    let last = board.num_corners() - 1;
+                    let last = board.num_points() - 1;
                     for o in &mut v.obs {
                         o.index = last - o.index;
                         o.object = board.object_point(o.index).unwrap_or(o.object);
                     }
-                    v.pose = v.pose.compose(&flip_inv);
+                    v.pose = v.pose.compose(&fi);
                 }
             } else {
                 starts[i].views[*f] = Err(format!(

@@ -7,7 +7,7 @@ use super::init::{CamView, CameraStart, extrinsics, start_camera};
 use super::problem::{Layout, Obs, RigProblem};
 use super::rectify::{epipolar_rms, stereo_rectify};
 use super::types::*;
-use crate::calib::{BoardGeometry, ModelKind, ParameterEstimate};
+use crate::calib::{ModelKind, ParameterEstimate, PlanarTarget};
 use crate::camera::CameraModel;
 use crate::error::{CoreError, CoreResult};
 use crate::lie::{Se3, So3};
@@ -17,7 +17,7 @@ use crate::progress::Progress;
 /// σ per coordinate from the median absolute residual component (Gaussian consistency).
 const MAD_TO_SIGMA: f64 = 1.4826;
 
-/// Calibrates a rig of 2..[`MAX_CAMERAS`] synchronised cameras from chessboard corners: each
+/// Calibrates a rig of 2..[`MAX_CAMERAS`] synchronised cameras from a planar target: each
 /// camera alone first, then one joint Levenberg-Marquardt over every camera's intrinsics, the
 /// extrinsics `T_cam_i_cam0` (on SE(3)) and one board pose per frame, with views where only some
 /// cameras see the board (Zhang 2000 per camera; the joint stage is the bundle adjustment that
@@ -29,7 +29,7 @@ const MAD_TO_SIGMA: f64 = 1.4826;
 /// [`CoreError::Canceled`].
 pub fn calibrate_rig(
     inputs: &[RigCameraInput],
-    board: &BoardGeometry,
+    board: &dyn PlanarTarget,
     options: &RigOptions,
     progress: &dyn Progress,
 ) -> CoreResult<RigCalibration> {
