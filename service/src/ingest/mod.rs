@@ -329,6 +329,7 @@ fn validate(
                     size: im.size,
                     media_type: format!("image/{}", info.format),
                     image: Some(info),
+                    video: None,
                 },
                 im.file,
             ));
@@ -372,6 +373,7 @@ fn validate(
                 size: r.size,
                 media_type: s.media_type().to_string(),
                 image: None,
+                video: None,
             },
             r.file,
         )],

@@ -77,6 +77,7 @@ pub(super) fn image_files(
                 size: bytes.len() as u64,
                 media_type: format!("image/{}", info.format),
                 image: Some(info),
+                video: None,
             },
             p.clone(),
         ));
@@ -117,6 +118,7 @@ pub(super) fn log_file(paths: &[(PathBuf, bool)]) -> Result<Vec<(DatasetFile, Pa
             size,
             media_type: sniffed.media_type().to_string(),
             image: None,
+            video: None,
         },
         p.clone(),
     )])

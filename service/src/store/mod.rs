@@ -86,6 +86,11 @@ pub struct DatasetFile {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[schema(value_type = Option<Object>)]
     pub image: Option<caliper_core::io::ImageInfo>,
+    /// Video facts probed at upload (codec, profile, size, rotation, fps, duration, frame and
+    /// keyframe counts), for videos.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub video: Option<serde_json::Value>,
 }
 
 /// A dataset row.

@@ -26,6 +26,7 @@ async fn dataset(s: &SqliteStore) -> Uuid {
             size: 1,
             media_type: "image/png".into(),
             image: None,
+            video: None,
         }],
         devices: None,
     })

@@ -11,7 +11,7 @@ use crate::store::*;
 impl PgStore {
     async fn load_files(&self, id: Uuid) -> StoreResult<Vec<DatasetFile>> {
         let rows = sqlx::query(
-            "SELECT name, sha256, size, media_type, image FROM dataset_files WHERE dataset_id = $1 ORDER BY idx",
+            "SELECT name, sha256, size, media_type, image, video FROM dataset_files WHERE dataset_id = $1 ORDER BY idx",
         )
         .bind(id.to_string())
         .fetch_all(&self.pool)
@@ -19,12 +19,17 @@ impl PgStore {
         rows.iter()
             .map(|r| {
                 let image: Option<String> = r.try_get("image")?;
+                let video: Option<String> = r.try_get("video")?;
                 Ok(DatasetFile {
                     name: r.try_get("name")?,
                     sha256: r.try_get("sha256")?,
                     size: r.try_get::<i64, _>("size")? as u64,
                     media_type: r.try_get("media_type")?,
                     image: image
+                        .map(|t| serde_json::from_str(&t))
+                        .transpose()
+                        .map_err(|e| StoreError::Corrupt(e.to_string()))?,
+                    video: video
                         .map(|t| serde_json::from_str(&t))
                         .transpose()
                         .map_err(|e| StoreError::Corrupt(e.to_string()))?,
@@ -72,9 +77,15 @@ impl DatasetStore for PgStore {
                 .map(serde_json::to_string)
                 .transpose()
                 .map_err(|e| StoreError::Corrupt(e.to_string()))?;
+            let video = f
+                .video
+                .as_ref()
+                .map(serde_json::to_string)
+                .transpose()
+                .map_err(|e| StoreError::Corrupt(e.to_string()))?;
             sqlx::query(
-                "INSERT INTO dataset_files (dataset_id, idx, name, sha256, size, media_type, image) \
-                 VALUES ($1, $2, $3, $4, $5, $6, $7)",
+                "INSERT INTO dataset_files (dataset_id, idx, name, sha256, size, media_type, image, video) \
+                 VALUES ($1, $2, $3, $4, $5, $6, $7, $8)",
             )
             .bind(ds.id.to_string())
             .bind(i as i64)
@@ -83,6 +94,7 @@ impl DatasetStore for PgStore {
             .bind(f.size as i64)
             .bind(&f.media_type)
             .bind(image)
+            .bind(video)
             .execute(&mut *tx)
             .await?;
         }

@@ -11,7 +11,7 @@ use crate::store::*;
 impl SqliteStore {
     async fn load_files(&self, id: Uuid) -> StoreResult<Vec<DatasetFile>> {
         let rows = sqlx::query(
-            "SELECT name, sha256, size, media_type, image FROM dataset_files WHERE dataset_id = ? ORDER BY idx",
+            "SELECT name, sha256, size, media_type, image, video FROM dataset_files WHERE dataset_id = ? ORDER BY idx",
         )
         .bind(id.to_string())
         .fetch_all(&self.read)
@@ -19,12 +19,17 @@ impl SqliteStore {
         rows.iter()
             .map(|r| {
                 let image: Option<String> = r.try_get("image")?;
+                let video: Option<String> = r.try_get("video")?;
                 Ok(DatasetFile {
                     name: r.try_get("name")?,
                     sha256: r.try_get("sha256")?,
                     size: r.try_get::<i64, _>("size")? as u64,
                     media_type: r.try_get("media_type")?,
                     image: image
+                        .map(|t| serde_json::from_str(&t))
+                        .transpose()
+                        .map_err(|e| StoreError::Corrupt(e.to_string()))?,
+                    video: video
                         .map(|t| serde_json::from_str(&t))
                         .transpose()
                         .map_err(|e| StoreError::Corrupt(e.to_string()))?,
@@ -81,8 +86,14 @@ impl DatasetStore for SqliteStore {
                 .map(serde_json::to_string)
                 .transpose()
                 .map_err(|e| StoreError::Corrupt(e.to_string()))?;
+            let video = f
+                .video
+                .as_ref()
+                .map(serde_json::to_string)
+                .transpose()
+                .map_err(|e| StoreError::Corrupt(e.to_string()))?;
             sqlx::query(
-                "INSERT INTO dataset_files (dataset_id, idx, name, sha256, size, media_type, image) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                "INSERT INTO dataset_files (dataset_id, idx, name, sha256, size, media_type, image, video) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
             )
             .bind(ds.id.to_string())
             .bind(i as i64)
@@ -91,6 +102,7 @@ impl DatasetStore for SqliteStore {
             .bind(f.size as i64)
             .bind(&f.media_type)
             .bind(image)
+            .bind(video)
             .execute(&mut *tx)
             .await?;
         }
