@@ -38,13 +38,19 @@ pub const JOBS_CHANNEL: &str = "caliper_jobs";
 pub const EVENTS_CHANNEL: &str = "caliper_job_events";
 
 fn migrator() -> Migrator {
-    Migrator::with_migrations(vec![Migration::new(
-        1,
-        "initial".into(),
-        MigrationType::Simple,
-        include_str!("migrations/0001_initial.sql").into_sql_str(),
-        false,
-    )])
+    let m = |version, name: &str, sql: &'static str| {
+        Migration::new(
+            version,
+            name.to_string().into(),
+            MigrationType::Simple,
+            sql.into_sql_str(),
+            false,
+        )
+    };
+    Migrator::with_migrations(vec![
+        m(1, "initial", include_str!("migrations/0001_initial.sql")),
+        m(2, "video", include_str!("migrations/0002_video.sql")),
+    ])
 }
 
 /// The database's clock in milliseconds since the epoch.

@@ -49,6 +49,7 @@ fn migrator() -> Migrator {
             include_str!("migrations/0002_blob_lifetime.sql"),
         ),
         m(3, "tokens", include_str!("migrations/0003_tokens.sql")),
+        m(4, "video", include_str!("migrations/0004_video.sql")),
     ])
 }
 
