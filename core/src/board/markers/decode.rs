@@ -173,12 +173,14 @@ fn read_quad(img: &Gray, q: &Quad, dict: &Dictionary, border: usize, min_contras
     let border_errors = (0..n * n)
         .filter(|&k| is_border(k / n, k % n) && cells[k] > thr)
         .count();
-    if border_errors * 5 > nb {
-        return Read::Nothing;
-    }
     if inner_max <= thr {
         // All black: a chessboard square, not a marker.
         return Read::Nothing;
+    }
+    if border_errors * 5 > nb {
+        // Dark outline, white inside, but no border of this dictionary's cell size: a
+        // marker of another dictionary, or not a marker at all.
+        return Read::Unknown;
     }
     let mut code = 0u64;
     for r in border..n - border {

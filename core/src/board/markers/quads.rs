@@ -197,23 +197,35 @@ pub fn find_quads(img: &Gray, min_contrast: f64, min_side: f64) -> Vec<Quad> {
         .collect()
 }
 
-/// The outline of a region (run ends, column tops and bottoms), then its quad.
+/// The outline of a region: the first and last dark pixel of every row and column it covers
+/// (inner edges, around holes and white bits, are not part of it).
 fn outline_quad(runs: &[Run], members: &[usize], b: [u32; 4]) -> Option<Quad> {
     let bw = (b[2] - b[0]) as usize;
+    let bh = (b[3] - b[1]) as usize;
     let mut top = vec![u32::MAX; bw];
     let mut bottom = vec![0u32; bw];
-    let mut pts: Vec<[f64; 2]> = Vec::with_capacity(2 * members.len() + 2 * bw);
+    let mut left = vec![u32::MAX; bh];
+    let mut right = vec![0u32; bh];
     let mut area = 0u64;
     for &i in members {
         let r = runs[i];
         area += u64::from(r.x1 - r.x0);
-        // Pixel edges: the outline runs half a pixel outside the dark pixel centres.
-        pts.push([f64::from(r.x0) - 0.5, f64::from(r.y)]);
-        pts.push([f64::from(r.x1) - 0.5, f64::from(r.y)]);
+        let k = (r.y - b[1]) as usize;
+        left[k] = left[k].min(r.x0);
+        right[k] = right[k].max(r.x1);
         for x in r.x0..r.x1 {
             let k = (x - b[0]) as usize;
             top[k] = top[k].min(r.y);
             bottom[k] = bottom[k].max(r.y);
+        }
+    }
+    // Pixel edges: the outline runs half a pixel outside the dark pixel centres.
+    let mut pts: Vec<[f64; 2]> = Vec::with_capacity(2 * (bw + bh));
+    for k in 0..bh {
+        if left[k] != u32::MAX {
+            let y = f64::from(b[1]) + k as f64;
+            pts.push([f64::from(left[k]) - 0.5, y]);
+            pts.push([f64::from(right[k]) - 0.5, y]);
         }
     }
     for k in 0..bw {
