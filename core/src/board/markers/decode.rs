@@ -3,8 +3,8 @@
 //! For every quad ([`super::quads`]) the cell grid of the marker (its data bits plus a black
 //! border of `border` cells, as in Garrido-Jurado et al. 2014 and Olson 2011) is mapped onto the
 //! quad by the homography of the unit square (Heckbert, "Fundamentals of texture mapping and
-//! image warping", 1989, §2.2.3). Each cell's grey level is the mean of five samples inside
-//! it; the threshold between black and white is the midpoint between the border cells (black
+//! image warping", 1989, §2.2.3). Each cell's grey level is the mean of five samples around
+//! its centre (within ±0.15 cell, where blur has taken the least); the threshold between black and white is the midpoint between the border cells (black
 //! by construction) and the white ring just outside the marker. The border must be black (a
 //! few wrong cells are tolerated: blur and glare); the data bits are then looked up in the
 //! dictionary in all four rotations with the dictionary's error correction, which gives the
@@ -124,7 +124,7 @@ fn read_quad(img: &Gray, q: &Quad, dict: &Dictionary, border: usize, min_contras
         for c in 0..n {
             let (u, v) = ((c as f64 + 0.5) * cell, (r as f64 + 0.5) * cell);
             let mut acc = 0.0;
-            for (du, dv) in [(0.0, 0.0), (-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25)] {
+            for (du, dv) in [(0.0, 0.0), (-0.15, -0.15), (0.15, -0.15), (-0.15, 0.15), (0.15, 0.15)] {
                 let p = map.map(u + du * cell, v + dv * cell);
                 let Some(g) = sample(img, p[0], p[1]) else {
                     return Read::Nothing;
@@ -215,7 +215,10 @@ pub fn detect_markers(
     if img.data.len() != w * h || w < 8 || h < 8 {
         return MarkerScan::default();
     }
-    let quads = find_quads(img, min_contrast, min_side);
+    // Borders of two cells (AprilGrid) stay solid at a lower level, which keeps the tags apart
+    // from the squares touching their corners when the board is tilted.
+    let level = if border >= 2 { 0.25 } else { 0.4 };
+    let quads = find_quads(img, min_contrast, min_side, level);
     let mut scan = MarkerScan {
         quads: quads.len(),
         ..MarkerScan::default()
