@@ -64,6 +64,15 @@ fn opencv_board_image_matches_our_layout() {
             for x in 0..700u32 {
                 let (bx, by) = ((x as f64 + 0.5) / 100.0 * 0.04, (y as f64 + 0.5) / 100.0 * 0.04);
                 let Some(black) = s.is_black(bx, by) else { continue };
+                // OpenCV rounds marker cells to whole pixels: skip pixels within 1.5 px of
+                // one of our cell edges.
+                let d = 1.5 / 100.0 * 0.04;
+                let uniform = [(-d, -d), (d, -d), (-d, d), (d, d)]
+                    .iter()
+                    .all(|(dx, dy)| s.is_black(bx + dx, by + dy) == Some(black));
+                if !uniform {
+                    continue;
+                }
                 let v = img.get_pixel(x, y).0[0];
                 if v > 64 && v < 192 {
                     continue;
