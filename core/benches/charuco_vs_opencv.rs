@@ -16,9 +16,9 @@ use std::time::Instant;
 
 use caliper_core::board::{TargetOptions, TargetSpec, detect_target};
 
+mod common;
 #[path = "../tests/targets_render.rs"]
 mod render;
-mod common;
 use common::median;
 use render::{Scene, render};
 
@@ -39,7 +39,10 @@ fn peers_dir() -> Option<PathBuf> {
 }
 
 fn scenes() -> Vec<Scene> {
-    let centre = [SQUARES.0 as f64 * SQUARE / 2.0, SQUARES.1 as f64 * SQUARE / 2.0];
+    let centre = [
+        SQUARES.0 as f64 * SQUARE / 2.0,
+        SQUARES.1 as f64 * SQUARE / 2.0,
+    ];
     let base = Scene {
         size: (1280, 960),
         f: 1100.0,
@@ -59,7 +62,16 @@ fn scenes() -> Vec<Scene> {
         [0.7, 0.5, 2.0],
         [-0.3, -0.7, 0.1],
     ];
-    let shifts = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [300.0, 0.0], [0.0, -250.0], [-420.0, 200.0], [0.0, 0.0], [0.0, 0.0]];
+    let shifts = [
+        [0.0, 0.0],
+        [0.0, 0.0],
+        [0.0, 0.0],
+        [300.0, 0.0],
+        [0.0, -250.0],
+        [-420.0, 200.0],
+        [0.0, 0.0],
+        [0.0, 0.0],
+    ];
     rots.iter()
         .zip(shifts)
         .enumerate()
@@ -91,7 +103,10 @@ fn main() {
         eprintln!("cannot create {}: {e}", dir.display());
         return;
     }
-    let views: Vec<_> = scenes().iter().map(|s| render(&spec, s, 0.5 * SQUARE)).collect();
+    let views: Vec<_> = scenes()
+        .iter()
+        .map(|s| render(&spec, s, 0.5 * SQUARE))
+        .collect();
     for (k, v) in views.iter().enumerate() {
         let img = image::GrayImage::from_raw(v.image.width, v.image.height, v.image.data.clone());
         let Some(img) = img else { return };
@@ -137,7 +152,12 @@ fn main() {
     };
     let (rms, n, worst) = err_vs_truth(&ours);
     let ours_med = median(ours_ms.clone());
-    println!("charuco {}x{} {DICT}, {} views 1280×960, {runs} runs per view", SQUARES.0, SQUARES.1, views.len());
+    println!(
+        "charuco {}x{} {DICT}, {} views 1280×960, {runs} runs per view",
+        SQUARES.0,
+        SQUARES.1,
+        views.len()
+    );
     println!(
         "  ours:   {n} corners, RMS vs truth {rms:.4} px (max {worst:.3}), median {ours_med:.2} ms/image  per view {:?}",
         ours.iter().map(Vec::len).collect::<Vec<_>>()
@@ -158,14 +178,28 @@ fn main() {
     for _ in 0..runs.min(3) {
         let out = Command::new(&py)
             .arg(peers.join("charuco_opencv.py"))
-            .args(["detect", "--squares", &format!("{}x{}", SQUARES.0, SQUARES.1)])
-            .args(["--square", &SQUARE.to_string(), "--marker", &MARKER.to_string(), "--dict", DICT])
+            .args([
+                "detect",
+                "--squares",
+                &format!("{}x{}", SQUARES.0, SQUARES.1),
+            ])
+            .args([
+                "--square",
+                &SQUARE.to_string(),
+                "--marker",
+                &MARKER.to_string(),
+                "--dict",
+                DICT,
+            ])
             .args(["--images", &dir.join("view*.png").to_string_lossy()])
             .output();
         let out = match out {
             Ok(o) if o.status.success() => o,
             Ok(o) => {
-                println!("  OpenCV: peer failed: {}", String::from_utf8_lossy(&o.stderr));
+                println!(
+                    "  OpenCV: peer failed: {}",
+                    String::from_utf8_lossy(&o.stderr)
+                );
                 return;
             }
             Err(e) => {
@@ -198,7 +232,10 @@ fn main() {
     }
     let (prms, pn, pworst) = err_vs_truth(&peer);
     let peer_med = median(peer_ms);
-    println!("  OpenCV: {pn} corners, RMS vs truth {prms:.4} px (max {pworst:.3}), median {peer_med:.2} ms/image  per view {:?}", peer.iter().map(Vec::len).collect::<Vec<_>>());
+    println!(
+        "  OpenCV: {pn} corners, RMS vs truth {prms:.4} px (max {pworst:.3}), median {peer_med:.2} ms/image  per view {:?}",
+        peer.iter().map(Vec::len).collect::<Vec<_>>()
+    );
     // Agreement: ids in both, ids in one only, RMS of the difference.
     let (mut both, mut only_ours, mut only_peer, mut sd) = (0, 0, 0, 0.0);
     for (a, b) in ours.iter().zip(&peer) {
@@ -211,7 +248,10 @@ fn main() {
                 None => only_ours += 1,
             }
         }
-        only_peer += b.iter().filter(|(i, _)| !a.iter().any(|(j, _)| j == i)).count();
+        only_peer += b
+            .iter()
+            .filter(|(i, _)| !a.iter().any(|(j, _)| j == i))
+            .count();
     }
     println!(
         "  agreement: {both} ids in both, {only_ours} ours only, {only_peer} OpenCV only, RMS difference {:.4} px",

@@ -45,7 +45,10 @@ fn extent(spec: &TargetSpec) -> [f64; 2] {
             ..
         } => {
             let pitch = (1.0 + tag_spacing) * tag_size;
-            [*tag_cols as f64 * pitch - tag_spacing * tag_size, *tag_rows as f64 * pitch - tag_spacing * tag_size]
+            [
+                *tag_cols as f64 * pitch - tag_spacing * tag_size,
+                *tag_rows as f64 * pitch - tag_spacing * tag_size,
+            ]
         }
         TargetSpec::Chessboard { .. } => [0.0, 0.0],
     }
@@ -76,17 +79,24 @@ fn expected(spec: &TargetSpec, scene: &Scene, view: &View) -> Vec<usize> {
             for id in 0..spec.num_corners() {
                 let a = id % (squares_x - 1) + 1;
                 let b = id / (squares_x - 1) + 1;
-                let ok = [(a - 1, b - 1), (a, b - 1), (a - 1, b), (a, b)].iter().any(|&(i, j)| {
-                    let black = (i % 2) == (j % 2);
-                    let r = [i as f64 * square, j as f64 * square, (i + 1) as f64 * square, (j + 1) as f64 * square];
-                    !black
-                        && i < *squares_x
-                        && j < *squares_y
-                        && clear(r)
-                        && [[r[0], r[1]], [r[2], r[1]], [r[0], r[3]], [r[2], r[3]]]
-                            .iter()
-                            .all(|p| inside(p[0], p[1]))
-                });
+                let ok = [(a - 1, b - 1), (a, b - 1), (a - 1, b), (a, b)]
+                    .iter()
+                    .any(|&(i, j)| {
+                        let black = (i % 2) == (j % 2);
+                        let r = [
+                            i as f64 * square,
+                            j as f64 * square,
+                            (i + 1) as f64 * square,
+                            (j + 1) as f64 * square,
+                        ];
+                        !black
+                            && i < *squares_x
+                            && j < *squares_y
+                            && clear(r)
+                            && [[r[0], r[1]], [r[2], r[1]], [r[0], r[3]], [r[2], r[3]]]
+                                .iter()
+                                .all(|p| inside(p[0], p[1]))
+                    });
                 if ok {
                     ids.push(id);
                 }
@@ -103,11 +113,21 @@ fn expected(spec: &TargetSpec, scene: &Scene, view: &View) -> Vec<usize> {
             let sq = tag_spacing * tag_size;
             for t in 0..tag_rows * tag_cols {
                 let (c, r) = ((t % tag_cols) as f64, (t / tag_cols) as f64);
-                let rect = [c * pitch - sq, r * pitch - sq, c * pitch + tag_size + sq, r * pitch + tag_size + sq];
+                let rect = [
+                    c * pitch - sq,
+                    r * pitch - sq,
+                    c * pitch + tag_size + sq,
+                    r * pitch + tag_size + sq,
+                ];
                 let vis = clear(rect)
-                    && [[rect[0], rect[1]], [rect[2], rect[1]], [rect[0], rect[3]], [rect[2], rect[3]]]
-                        .iter()
-                        .all(|p| inside(p[0], p[1]));
+                    && [
+                        [rect[0], rect[1]],
+                        [rect[2], rect[1]],
+                        [rect[0], rect[3]],
+                        [rect[2], rect[3]],
+                    ]
+                    .iter()
+                    .all(|p| inside(p[0], p[1]));
                 if vis {
                     let gc = 2 * tag_cols;
                     let base = (t / tag_cols) * 2 * gc + (t % tag_cols) * 2;
@@ -196,7 +216,11 @@ fn centred(spec: &TargetSpec) -> [f64; 2] {
 fn charuco_fronto_parallel_all_corners_accurate() {
     let spec = charuco();
     // Slightly turned: axis-aligned edges are quantised to the renderer's 1/4-px subsamples.
-    let scene = Scene { dist: 0.6, rot: [0.05, -0.05, 0.12], ..base(&spec) };
+    let scene = Scene {
+        dist: 0.6,
+        rot: [0.05, -0.05, 0.12],
+        ..base(&spec)
+    };
     let (n, want, rms) = check(&spec, &scene, 0.1, "charuco fronto");
     assert_eq!(n, want);
     assert_eq!(n, spec.num_corners());
@@ -207,7 +231,10 @@ fn charuco_fronto_parallel_all_corners_accurate() {
 fn charuco_occluded_tilted_blurred_every_visible_corner() {
     let spec = charuco();
     let e = extent(&spec);
-    for (k, rot) in [[1.047, 0.0, 0.0], [0.0, 1.047, 0.0], [0.5, -0.8, 0.3]].iter().enumerate() {
+    for (k, rot) in [[1.047, 0.0, 0.0], [0.0, 1.047, 0.0], [0.5, -0.8, 0.3]]
+        .iter()
+        .enumerate()
+    {
         let scene = Scene {
             dist: 0.38,
             rot: *rot,
@@ -220,7 +247,13 @@ fn charuco_occluded_tilted_blurred_every_visible_corner() {
         };
         // Known shortfall: at 60° about the vertical axis, blur σ = 1.5, two corners of the far
         // column (markers ~23 px wide, 3 px cells) are missed.
-        check_allowing(&spec, &scene, 0.3, &format!("charuco occluded tilt {rot:?}"), 2);
+        check_allowing(
+            &spec,
+            &scene,
+            0.3,
+            &format!("charuco occluded tilt {rot:?}"),
+            2,
+        );
     }
 }
 
@@ -235,12 +268,20 @@ fn charuco_half_out_of_frame_gives_visible_corners_with_ids() {
         ..base(&spec)
     };
     let (n, want, _) = check(&spec, &scene, 0.2, "charuco half out");
-    assert!(n >= want && n < spec.num_corners(), "{n} of {}", spec.num_corners());
+    assert!(
+        n >= want && n < spec.num_corners(),
+        "{n} of {}",
+        spec.num_corners()
+    );
 }
 
 #[test]
 fn charuco_legacy_layout_and_other_dictionaries() {
-    for (dict, legacy) in [("DICT_4X4_50", true), ("DICT_6X6_250", false), ("DICT_APRILTAG_36h11", false)] {
+    for (dict, legacy) in [
+        ("DICT_4X4_50", true),
+        ("DICT_6X6_250", false),
+        ("DICT_APRILTAG_36h11", false),
+    ] {
         let spec = TargetSpec::Charuco {
             squares_x: 5,
             squares_y: 6,
@@ -249,7 +290,12 @@ fn charuco_legacy_layout_and_other_dictionaries() {
             dictionary: dict.into(),
             legacy,
         };
-        let scene = Scene { dist: 0.5, rot: [0.3, 0.2, 0.1], blur: 0.8, ..base(&spec) };
+        let scene = Scene {
+            dist: 0.5,
+            rot: [0.3, 0.2, 0.1],
+            blur: 0.8,
+            ..base(&spec)
+        };
         let (n, want, _) = check(&spec, &scene, 0.2, dict);
         assert_eq!(n, want);
     }
@@ -259,7 +305,11 @@ fn charuco_legacy_layout_and_other_dictionaries() {
 fn aprilgrid_fronto_parallel_all_corners_accurate() {
     let spec = aprilgrid();
     // Slightly turned: axis-aligned edges are quantised to the renderer's 1/4-px subsamples.
-    let scene = Scene { dist: 0.6, rot: [0.05, -0.05, 0.12], ..base(&spec) };
+    let scene = Scene {
+        dist: 0.6,
+        rot: [0.05, -0.05, 0.12],
+        ..base(&spec)
+    };
     let (n, want, rms) = check(&spec, &scene, 0.1, "aprilgrid fronto");
     assert_eq!(n, want);
     assert_eq!(n, spec.num_corners());
@@ -270,7 +320,10 @@ fn aprilgrid_fronto_parallel_all_corners_accurate() {
 fn aprilgrid_occluded_tilted_blurred_every_visible_corner() {
     let spec = aprilgrid();
     let e = extent(&spec);
-    for (k, rot) in [[1.047, 0.0, 0.0], [0.0, -1.047, 0.0], [0.6, 0.7, -0.5]].iter().enumerate() {
+    for (k, rot) in [[1.047, 0.0, 0.0], [0.0, -1.047, 0.0], [0.6, 0.7, -0.5]]
+        .iter()
+        .enumerate()
+    {
         let scene = Scene {
             dist: 0.5,
             rot: *rot,
@@ -282,14 +335,25 @@ fn aprilgrid_occluded_tilted_blurred_every_visible_corner() {
         };
         // Known shortfall: at 60° the two farthest tags (cells under 3 px across after
         // foreshortening and blur σ = 1.5) are not decoded, or two corners fail the fit.
-        check_allowing(&spec, &scene, 0.3, &format!("aprilgrid occluded tilt {rot:?}"), 8);
+        check_allowing(
+            &spec,
+            &scene,
+            0.3,
+            &format!("aprilgrid occluded tilt {rot:?}"),
+            8,
+        );
     }
 }
 
 #[test]
 fn aprilgrid_half_out_of_frame() {
     let spec = aprilgrid();
-    let scene = Scene { dist: 0.55, shift: [-350.0, -200.0], rot: [-0.3, 0.2, 2.5], ..base(&spec) };
+    let scene = Scene {
+        dist: 0.55,
+        shift: [-350.0, -200.0],
+        rot: [-0.3, 0.2, 2.5],
+        ..base(&spec)
+    };
     let (n, want, _) = check(&spec, &scene, 0.2, "aprilgrid half out");
     assert!(n >= want && n < spec.num_corners());
 }
@@ -335,9 +399,19 @@ fn aprilgrid_corner_rms_under_noise() {
 #[test]
 fn wrong_dictionary_says_so() {
     let printed = charuco();
-    let scene = Scene { dist: 0.6, ..base(&printed) };
+    let scene = Scene {
+        dist: 0.6,
+        ..base(&printed)
+    };
     let view = render(&printed, &scene, 0.02);
-    let TargetSpec::Charuco { squares_x, squares_y, square, marker, .. } = printed else {
+    let TargetSpec::Charuco {
+        squares_x,
+        squares_y,
+        square,
+        marker,
+        ..
+    } = printed
+    else {
         unreachable!()
     };
     let asked = TargetSpec::Charuco {
@@ -351,16 +425,30 @@ fn wrong_dictionary_says_so() {
     let det = detect_target(&view.image, &asked, &TargetOptions::default());
     assert!(det.corners.is_empty());
     let reason = det.reason.expect("a reason");
-    assert!(reason.contains("wrong dictionary") && reason.contains("DICT_6X6_250"), "{reason}");
+    assert!(
+        reason.contains("wrong dictionary") && reason.contains("DICT_6X6_250"),
+        "{reason}"
+    );
 }
 
 #[test]
 fn duplicate_ids_are_dropped_with_a_warning() {
     // Two copies of the same board side by side.
     let spec = charuco();
-    let scene = Scene { dist: 0.9, shift: [-170.0, 0.0], ..base(&spec) };
+    let scene = Scene {
+        dist: 0.9,
+        shift: [-170.0, 0.0],
+        ..base(&spec)
+    };
     let a = render(&spec, &scene, 0.02);
-    let b = render(&spec, &Scene { shift: [200.0, 0.0], ..scene.clone() }, 0.02);
+    let b = render(
+        &spec,
+        &Scene {
+            shift: [200.0, 0.0],
+            ..scene.clone()
+        },
+        0.02,
+    );
     let mut img = a.image.clone();
     let w = img.width as usize;
     for (k, v) in img.data.iter_mut().enumerate() {
@@ -369,14 +457,22 @@ fn duplicate_ids_are_dropped_with_a_warning() {
         }
     }
     let det = detect_target(&img, &spec, &TargetOptions::default());
-    assert!(det.warnings.iter().any(|w| w.contains("more than once")), "{:?}", det.warnings);
+    assert!(
+        det.warnings.iter().any(|w| w.contains("more than once")),
+        "{:?}",
+        det.warnings
+    );
     // Every id is on both boards: nothing usable remains.
     assert!(det.markers_found < 3, "{} markers kept", det.markers_found);
 }
 
 #[test]
 fn empty_and_flat_images_give_reasons() {
-    let img = caliper_core::io::Gray { width: 64, height: 48, data: vec![128; 64 * 48] };
+    let img = caliper_core::io::Gray {
+        width: 64,
+        height: 48,
+        data: vec![128; 64 * 48],
+    };
     for spec in [charuco(), aprilgrid()] {
         let det = detect_target(&img, &spec, &TargetOptions::default());
         assert!(det.corners.is_empty() && det.reason.is_some());

@@ -29,7 +29,16 @@ fn python() -> Option<(std::ffi::OsString, PathBuf)> {
     Some((py, script))
 }
 
-const ARGS: [&str; 8] = ["--squares", "7x6", "--square", "0.04", "--marker", "0.03", "--dict", "DICT_5X5_100"];
+const ARGS: [&str; 8] = [
+    "--squares",
+    "7x6",
+    "--square",
+    "0.04",
+    "--marker",
+    "0.03",
+    "--dict",
+    "DICT_5X5_100",
+];
 
 fn spec(legacy: bool) -> TargetSpec {
     TargetSpec::Charuco {
@@ -50,20 +59,33 @@ fn opencv_board_image_matches_our_layout() {
     for legacy in [false, true] {
         let out = dir.join(format!("board{legacy}.png"));
         let mut cmd = Command::new(&py);
-        cmd.arg(&script).arg("render").args(ARGS).args(["--px", "700x600", "--out"]).arg(&out);
+        cmd.arg(&script)
+            .arg("render")
+            .args(ARGS)
+            .args(["--px", "700x600", "--out"])
+            .arg(&out);
         if legacy {
             cmd.arg("--legacy");
         }
         let st = cmd.output().expect("run the peer");
-        assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+        assert!(
+            st.status.success(),
+            "{}",
+            String::from_utf8_lossy(&st.stderr)
+        );
         let img = image::open(&out).expect("png").to_luma8();
         // 100 px per square: compare at pixel centres away from the edges.
         let s = spec(legacy);
         let (mut n, mut bad) = (0, 0);
         for y in 0..600u32 {
             for x in 0..700u32 {
-                let (bx, by) = ((x as f64 + 0.5) / 100.0 * 0.04, (y as f64 + 0.5) / 100.0 * 0.04);
-                let Some(black) = s.is_black(bx, by) else { continue };
+                let (bx, by) = (
+                    (x as f64 + 0.5) / 100.0 * 0.04,
+                    (y as f64 + 0.5) / 100.0 * 0.04,
+                );
+                let Some(black) = s.is_black(bx, by) else {
+                    continue;
+                };
                 // OpenCV rounds marker cells to whole pixels: skip pixels within 1.5 px of
                 // one of our cell edges.
                 let d = 1.5 / 100.0 * 0.04;
@@ -84,7 +106,10 @@ fn opencv_board_image_matches_our_layout() {
             }
         }
         println!("legacy {legacy}: {bad} of {n} pixels differ from OpenCV's board image");
-        assert!(bad * 1000 < n, "legacy {legacy}: {bad} of {n} pixels differ");
+        assert!(
+            bad * 1000 < n,
+            "legacy {legacy}: {bad} of {n} pixels differ"
+        );
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -96,8 +121,23 @@ fn opencv_finds_our_ids_at_our_positions() {
     std::fs::create_dir_all(&dir).expect("temp dir");
     let s = spec(false);
     let scenes = [
-        Scene { centre: [0.14, 0.12], dist: 0.5, rot: [0.5, 0.3, 0.2], blur: 1.0, noise: 1.0, ..Scene::default() },
-        Scene { centre: [0.14, 0.12], dist: 0.45, rot: [-0.2, 0.9, -0.3], shift: [250.0, 0.0], blur: 1.0, noise: 1.0, ..Scene::default() },
+        Scene {
+            centre: [0.14, 0.12],
+            dist: 0.5,
+            rot: [0.5, 0.3, 0.2],
+            blur: 1.0,
+            noise: 1.0,
+            ..Scene::default()
+        },
+        Scene {
+            centre: [0.14, 0.12],
+            dist: 0.45,
+            rot: [-0.2, 0.9, -0.3],
+            shift: [250.0, 0.0],
+            blur: 1.0,
+            noise: 1.0,
+            ..Scene::default()
+        },
     ];
     let mut ours = Vec::new();
     for (k, sc) in scenes.iter().enumerate() {
@@ -106,7 +146,10 @@ fn opencv_finds_our_ids_at_our_positions() {
             .expect("image")
             .save(dir.join(format!("v{k}.png")))
             .expect("png");
-        ours.push((detect_target(&v.image, &s, &TargetOptions::default()), v.truth));
+        ours.push((
+            detect_target(&v.image, &s, &TargetOptions::default()),
+            v.truth,
+        ));
     }
     let out = Command::new(&py)
         .arg(&script)
@@ -116,16 +159,30 @@ fn opencv_finds_our_ids_at_our_positions() {
         .arg(dir.join("v*.png"))
         .output()
         .expect("run the peer");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
     for (k, (det, truth)) in ours.iter().enumerate() {
         let im = &doc["images"][k];
-        let ids: Vec<usize> = im["ids"].as_array().expect("ids").iter().filter_map(|v| v.as_u64()).map(|v| v as usize).collect();
+        let ids: Vec<usize> = im["ids"]
+            .as_array()
+            .expect("ids")
+            .iter()
+            .filter_map(|v| v.as_u64())
+            .map(|v| v as usize)
+            .collect();
         let cs = im["corners"].as_array().expect("corners");
         let (mut both, mut sd, mut se_ocv, mut se_ours) = (0, 0.0, 0.0, 0.0);
         for (id, c) in ids.iter().zip(cs) {
             let q = [c[0].as_f64().expect("x"), c[1].as_f64().expect("y")];
-            let t = truth.iter().find(|(i, _)| i == id).map(|(_, p)| *p).expect("OpenCV id on the board");
+            let t = truth
+                .iter()
+                .find(|(i, _)| i == id)
+                .map(|(_, p)| *p)
+                .expect("OpenCV id on the board");
             se_ocv += (q[0] - t[0]).powi(2) + (q[1] - t[1]).powi(2);
             if let Some(p) = det.corners.iter().find(|c| c.index == *id) {
                 both += 1;

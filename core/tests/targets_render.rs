@@ -138,7 +138,9 @@ fn colour(spec: &TargetSpec, scene: &Scene, margin: f64, p: [f64; 2]) -> f64 {
 
 fn blur(img: &mut [f64], w: usize, h: usize, sigma: f64) {
     let r = (3.0 * sigma).ceil() as isize;
-    let k: Vec<f64> = (-r..=r).map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp()).collect();
+    let k: Vec<f64> = (-r..=r)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
+        .collect();
     let s: f64 = k.iter().sum();
     let k: Vec<f64> = k.iter().map(|v| v / s).collect();
     let mirror = |i: isize, n: usize| -> usize {
@@ -194,7 +196,8 @@ pub fn render(spec: &TargetSpec, scene: &Scene, margin: f64) -> View {
                 let mut acc = 0.0;
                 for sy in 0..ss {
                     for sx in 0..ss {
-                        let (fx, fy) = ((sx as f64 + 0.5) / ss as f64, (sy as f64 + 0.5) / ss as f64);
+                        let (fx, fy) =
+                            ((sx as f64 + 0.5) / ss as f64, (sy as f64 + 0.5) / ss as f64);
                         let p = project(&inv, x as f64 - 0.5 + fx, y as f64 - 0.5 + fy);
                         acc += colour(spec, scene, margin, p);
                     }
@@ -215,7 +218,10 @@ pub fn render(spec: &TargetSpec, scene: &Scene, margin: f64) -> View {
     let image = Gray {
         width: w as u32,
         height: h as u32,
-        data: img.iter().map(|v| v.round().clamp(0.0, 255.0) as u8).collect(),
+        data: img
+            .iter()
+            .map(|v| v.round().clamp(0.0, 255.0) as u8)
+            .collect(),
     };
     let truth = (0..spec.num_corners())
         .filter_map(|id| {
@@ -225,5 +231,9 @@ pub fn render(spec: &TargetSpec, scene: &Scene, margin: f64) -> View {
                 .then_some((id, p))
         })
         .collect();
-    View { image, truth, h: hm }
+    View {
+        image,
+        truth,
+        h: hm,
+    }
 }

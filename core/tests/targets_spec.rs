@@ -27,7 +27,8 @@ fn json_round_trip_with_type_tag() {
             legacy: false
         }
     );
-    let back: TargetSpec = serde_json::from_str(&serde_json::to_string(&spec).expect("json")).expect("parse");
+    let back: TargetSpec =
+        serde_json::from_str(&serde_json::to_string(&spec).expect("json")).expect("parse");
     assert_eq!(back, spec);
     let grid: TargetSpec = serde_json::from_str(
         r#"{"type": "aprilgrid", "tag_rows": 6, "tag_cols": 6, "tag_size": 0.088, "tag_spacing": 0.3}"#,
@@ -35,9 +36,15 @@ fn json_round_trip_with_type_tag() {
     .expect("aprilgrid");
     assert_eq!(grid.num_corners(), 144);
     let chess: TargetSpec =
-        serde_json::from_str(r#"{"type": "chessboard", "cols": 9, "rows": 6, "square": 0.025}"#).expect("chess");
+        serde_json::from_str(r#"{"type": "chessboard", "cols": 9, "rows": 6, "square": 0.025}"#)
+            .expect("chess");
     assert_eq!(chess.num_corners(), 54);
-    assert!(serde_json::from_str::<TargetSpec>(r#"{"type": "chessboard", "cols": 9, "rows": 6, "square": 1, "x": 1}"#).is_err());
+    assert!(
+        serde_json::from_str::<TargetSpec>(
+            r#"{"type": "chessboard", "cols": 9, "rows": 6, "square": 1, "x": 1}"#
+        )
+        .is_err()
+    );
 }
 
 #[test]
@@ -95,7 +102,10 @@ fn aprilgrid_ids_and_positions_follow_kalibr() {
     ];
     for (id, x, y) in want {
         let p = spec.object_point(id).expect("corner");
-        assert!((p.x - x).abs() < 1e-12 && (p.y - y).abs() < 1e-12, "{id}: {p:?}");
+        assert!(
+            (p.x - x).abs() < 1e-12 && (p.y - y).abs() < 1e-12,
+            "{id}: {p:?}"
+        );
     }
     assert!(spec.object_point(16).is_none());
     // Black corner squares between the tags; white gaps.
@@ -114,13 +124,34 @@ fn impossible_boards_name_the_field() {
         dictionary: dict.into(),
         legacy: false,
     };
-    assert_eq!(field(ch(5, 7, 0.04, 0.04, "DICT_4X4_50").validate().unwrap_err()), "marker");
-    assert_eq!(field(ch(1, 7, 0.04, 0.02, "DICT_4X4_50").validate().unwrap_err()), "squares_x");
-    assert_eq!(field(ch(5, 7, f64::NAN, 0.02, "DICT_4X4_50").validate().unwrap_err()), "square");
-    assert_eq!(field(ch(5, 7, 0.04, -0.02, "DICT_4X4_50").validate().unwrap_err()), "marker");
-    assert_eq!(field(ch(5, 7, 0.04, 0.02, "DICT_9X9_1").validate().unwrap_err()), "dictionary");
+    assert_eq!(
+        field(ch(5, 7, 0.04, 0.04, "DICT_4X4_50").validate().unwrap_err()),
+        "marker"
+    );
+    assert_eq!(
+        field(ch(1, 7, 0.04, 0.02, "DICT_4X4_50").validate().unwrap_err()),
+        "squares_x"
+    );
+    assert_eq!(
+        field(
+            ch(5, 7, f64::NAN, 0.02, "DICT_4X4_50")
+                .validate()
+                .unwrap_err()
+        ),
+        "square"
+    );
+    assert_eq!(
+        field(ch(5, 7, 0.04, -0.02, "DICT_4X4_50").validate().unwrap_err()),
+        "marker"
+    );
+    assert_eq!(
+        field(ch(5, 7, 0.04, 0.02, "DICT_9X9_1").validate().unwrap_err()),
+        "dictionary"
+    );
     // 12×12 squares need 72 markers; DICT_4X4_50 has 50.
-    let e = ch(12, 12, 0.04, 0.02, "DICT_4X4_50").validate().unwrap_err();
+    let e = ch(12, 12, 0.04, 0.02, "DICT_4X4_50")
+        .validate()
+        .unwrap_err();
     assert!(e.to_string().contains("72"), "{e}");
     assert!(ch(12, 12, 0.04, 0.02, "DICT_4X4_100").validate().is_ok());
     let ag = |rows, cols, size, spacing, fam: &str| TargetSpec::Aprilgrid {
@@ -130,12 +161,31 @@ fn impossible_boards_name_the_field() {
         tag_spacing: spacing,
         tag_family: fam.into(),
     };
-    assert_eq!(field(ag(0, 6, 0.08, 0.3, "tag36h11").validate().unwrap_err()), "tag_rows");
-    assert_eq!(field(ag(6, 6, 0.0, 0.3, "tag36h11").validate().unwrap_err()), "tag_size");
-    assert_eq!(field(ag(6, 6, 0.08, 1.5, "tag36h11").validate().unwrap_err()), "tag_spacing");
-    assert_eq!(field(ag(6, 6, 0.08, 0.3, "tag25h9").validate().unwrap_err()), "tag_family");
-    assert_eq!(field(ag(30, 30, 0.08, 0.3, "tag36h11").validate().unwrap_err()), "tag_cols");
-    let cb = TargetSpec::Chessboard { cols: 1, rows: 6, square: 0.02 };
+    assert_eq!(
+        field(ag(0, 6, 0.08, 0.3, "tag36h11").validate().unwrap_err()),
+        "tag_rows"
+    );
+    assert_eq!(
+        field(ag(6, 6, 0.0, 0.3, "tag36h11").validate().unwrap_err()),
+        "tag_size"
+    );
+    assert_eq!(
+        field(ag(6, 6, 0.08, 1.5, "tag36h11").validate().unwrap_err()),
+        "tag_spacing"
+    );
+    assert_eq!(
+        field(ag(6, 6, 0.08, 0.3, "tag25h9").validate().unwrap_err()),
+        "tag_family"
+    );
+    assert_eq!(
+        field(ag(30, 30, 0.08, 0.3, "tag36h11").validate().unwrap_err()),
+        "tag_cols"
+    );
+    let cb = TargetSpec::Chessboard {
+        cols: 1,
+        rows: 6,
+        square: 0.02,
+    };
     assert_eq!(field(cb.validate().unwrap_err()), "cols");
     assert_eq!(cb.num_corners(), 0);
     assert!(cb.object_point(0).is_none());
@@ -157,17 +207,40 @@ fn kalibr_yaml_as_kalibr_writes_it() {
     let checker = "target_type: 'checkerboard' #gridtype\ntargetCols: 6\ntargetRows: 7\nrowSpacingMeters: 0.06\ncolSpacingMeters: 0.06\n";
     assert_eq!(
         TargetSpec::from_kalibr_yaml(checker).expect("checkerboard"),
-        TargetSpec::Chessboard { cols: 6, rows: 7, square: 0.06 }
+        TargetSpec::Chessboard {
+            cols: 6,
+            rows: 7,
+            square: 0.06
+        }
     );
     for (bad, key) in [
-        ("target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 7\ntagSize: 0.088\n", "tagSpacing"),
-        ("target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 7\ntagSize: 0.088\ntagSpacing: 0.3\ntagSpace: 1\n", "tagSpace"),
+        (
+            "target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 7\ntagSize: 0.088\n",
+            "tagSpacing",
+        ),
+        (
+            "target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 7\ntagSize: 0.088\ntagSpacing: 0.3\ntagSpace: 1\n",
+            "tagSpace",
+        ),
         ("target_type: 'circlegrid'\n", "target_type"),
-        ("target_type: 'checkerboard'\ntargetCols: 6\ntargetRows: 7\nrowSpacingMeters: 0.06\ncolSpacingMeters: 0.05\n", "rowSpacingMeters"),
-        ("target_type: 'aprilgrid'\ntagCols: six\ntagRows: 7\ntagSize: 0.088\ntagSpacing: 0.3\n", "tagCols"),
-        ("target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 7\ntagSize: -1\ntagSpacing: 0.3\n", "tag_size"),
+        (
+            "target_type: 'checkerboard'\ntargetCols: 6\ntargetRows: 7\nrowSpacingMeters: 0.06\ncolSpacingMeters: 0.05\n",
+            "rowSpacingMeters",
+        ),
+        (
+            "target_type: 'aprilgrid'\ntagCols: six\ntagRows: 7\ntagSize: 0.088\ntagSpacing: 0.3\n",
+            "tagCols",
+        ),
+        (
+            "target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 7\ntagSize: -1\ntagSpacing: 0.3\n",
+            "tag_size",
+        ),
     ] {
-        assert_eq!(field(TargetSpec::from_kalibr_yaml(bad).unwrap_err()), key, "{bad}");
+        assert_eq!(
+            field(TargetSpec::from_kalibr_yaml(bad).unwrap_err()),
+            key,
+            "{bad}"
+        );
     }
     assert!(TargetSpec::from_kalibr_yaml("target_type: 'aprilgrid'\n  nested: 1\n").is_err());
 }
@@ -191,8 +264,12 @@ fn opencv_charuco_parameters() {
         TargetSpec::from_opencv_charuco(named).expect("named"),
         TargetSpec::Charuco { legacy: true, .. }
     ));
-    let bad = "squaresX: 6\nsquaresY: 8\nsquareLength: 30\nmarkerLength: 32\ndictionary: DICT_4X4_50\n";
-    assert_eq!(field(TargetSpec::from_opencv_charuco(bad).unwrap_err()), "marker");
+    let bad =
+        "squaresX: 6\nsquaresY: 8\nsquareLength: 30\nmarkerLength: 32\ndictionary: DICT_4X4_50\n";
+    assert_eq!(
+        field(TargetSpec::from_opencv_charuco(bad).unwrap_err()),
+        "marker"
+    );
 }
 
 #[test]

@@ -19,7 +19,6 @@ use crate::calib::{CornerObservation, ViewObservations};
 use crate::error::{CoreError, CoreResult};
 use crate::io::Gray;
 
-
 /// A calibration target.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
@@ -76,7 +75,10 @@ fn positive(field: &str, v: f64) -> CoreResult<()> {
     if v.is_finite() && v > 0.0 {
         Ok(())
     } else {
-        Err(CoreError::param(field, format!("must be positive and finite, got {v}")))
+        Err(CoreError::param(
+            field,
+            format!("must be positive and finite, got {v}"),
+        ))
     }
 }
 

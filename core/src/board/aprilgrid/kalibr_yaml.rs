@@ -33,7 +33,8 @@ fn flat(fmt: &str, text: &str) -> CoreResult<Vec<(String, String)>> {
         let key = k.trim().to_owned();
         let v = v.trim();
         let value = if v.len() >= 2
-            && ((v.starts_with('\'') && v.ends_with('\'')) || (v.starts_with('"') && v.ends_with('"')))
+            && ((v.starts_with('\'') && v.ends_with('\''))
+                || (v.starts_with('"') && v.ends_with('"')))
         {
             v[1..v.len() - 1].to_owned()
         } else {

@@ -144,7 +144,10 @@ pub(crate) fn aprilgrid_corners(
             };
             // Colours: inside the tag and the spacing square dark, the two gaps bright.
             let [u, v] = unit[k];
-            let (su, sv) = (if u > 0.5 { -1.0 } else { 1.0 }, if v > 0.5 { -1.0 } else { 1.0 });
+            let (su, sv) = (
+                if u > 0.5 { -1.0 } else { 1.0 },
+                if v > 0.5 { -1.0 } else { 1.0 },
+            );
             let off = 0.5 * pure;
             let shift = [p[0] - c[k][0], p[1] - c[k][1]];
             let at = |du: f64, dv: f64| {

@@ -224,7 +224,12 @@ pub(crate) fn charuco_corners(
         let mut dark = f64::MIN;
         let mut bright = f64::MAX;
         let mut inside = true;
-        for (di, dj, sx, sy) in [(0, 0, -1.0, -1.0), (1, 0, 1.0, -1.0), (0, 1, -1.0, 1.0), (1, 1, 1.0, 1.0)] {
+        for (di, dj, sx, sy) in [
+            (0, 0, -1.0, -1.0),
+            (1, 0, 1.0, -1.0),
+            (0, 1, -1.0, 1.0),
+            (1, 1, 1.0, 1.0),
+        ] {
             let q = a.map.map(
                 (x + sx * off - a.origin[0]) / board.marker,
                 (y + sy * off - a.origin[1]) / board.marker,

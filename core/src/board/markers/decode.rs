@@ -124,7 +124,13 @@ fn read_quad(img: &Gray, q: &Quad, dict: &Dictionary, border: usize, min_contras
         for c in 0..n {
             let (u, v) = ((c as f64 + 0.5) * cell, (r as f64 + 0.5) * cell);
             let mut acc = 0.0;
-            for (du, dv) in [(0.0, 0.0), (-0.15, -0.15), (0.15, -0.15), (-0.15, 0.15), (0.15, 0.15)] {
+            for (du, dv) in [
+                (0.0, 0.0),
+                (-0.15, -0.15),
+                (0.15, -0.15),
+                (-0.15, 0.15),
+                (0.15, 0.15),
+            ] {
                 let p = map.map(u + du * cell, v + dv * cell);
                 let Some(g) = sample(img, p[0], p[1]) else {
                     return Read::Nothing;
@@ -134,7 +140,8 @@ fn read_quad(img: &Gray, q: &Quad, dict: &Dictionary, border: usize, min_contras
             cells[r * n + c] = acc / 5.0;
         }
     }
-    let is_border = |r: usize, c: usize| r < border || c < border || r >= n - border || c >= n - border;
+    let is_border =
+        |r: usize, c: usize| r < border || c < border || r >= n - border || c >= n - border;
     let mut black = 0.0;
     let mut nb = 0usize;
     for r in 0..n {
@@ -149,7 +156,12 @@ fn read_quad(img: &Gray, q: &Quad, dict: &Dictionary, border: usize, min_contras
     // The white ring outside, half a cell beyond the border, away from the corners.
     let mut outside: Vec<f64> = Vec::with_capacity(16);
     for t in [0.3, 0.45, 0.55, 0.7] {
-        for (u, v) in [(t, -0.5 * cell), (t, 1.0 + 0.5 * cell), (-0.5 * cell, t), (1.0 + 0.5 * cell, t)] {
+        for (u, v) in [
+            (t, -0.5 * cell),
+            (t, 1.0 + 0.5 * cell),
+            (-0.5 * cell, t),
+            (1.0 + 0.5 * cell, t),
+        ] {
             let p = map.map(u, v);
             if let Some(g) = sample(img, p[0], p[1]) {
                 outside.push(g);

@@ -172,7 +172,10 @@ pub fn find_quads(img: &Gray, min_contrast: f64, min_side: f64, level: f64) -> V
     }
     let max_side = 0.95 * w.max(h) as f64;
     let ok = |b: &[u32; 4]| {
-        let (bw, bh) = (f64::from(b[2]) - f64::from(b[0]), f64::from(b[3]) - f64::from(b[1]));
+        let (bw, bh) = (
+            f64::from(b[2]) - f64::from(b[0]),
+            f64::from(b[3]) - f64::from(b[1]),
+        );
         b[0] > 0
             && b[1] > 0
             && (b[2] as usize) < w
@@ -410,7 +413,10 @@ mod tests {
         assert_eq!(q.len(), 1);
         let mut c = q[0].corners.to_vec();
         c.sort_by(|a, b| (a[0] + 2.0 * a[1]).total_cmp(&(b[0] + 2.0 * b[1])));
-        for (got, want) in c.iter().zip([[29.5, 19.5], [54.5, 19.5], [29.5, 39.5], [54.5, 39.5]]) {
+        for (got, want) in c
+            .iter()
+            .zip([[29.5, 19.5], [54.5, 19.5], [29.5, 39.5], [54.5, 39.5]])
+        {
             assert!(d2(*got, want).sqrt() < 0.3, "{got:?} vs {want:?}");
         }
     }
