@@ -118,10 +118,13 @@ const BACKGROUND: f64 = 90.0;
 const OCCLUDER: f64 = 128.0;
 
 fn colour(spec: &TargetSpec, scene: &Scene, margin: f64, p: [f64; 2]) -> f64 {
-    if let Some([x0, y0, x1, y1]) = scene.occluder {
-        if p[0] >= x0 && p[0] <= x1 && p[1] >= y0 && p[1] <= y1 {
-            return OCCLUDER;
-        }
+    if let Some([x0, y0, x1, y1]) = scene.occluder
+        && p[0] >= x0
+        && p[0] <= x1
+        && p[1] >= y0
+        && p[1] <= y1
+    {
+        return OCCLUDER;
     }
     match spec.is_black(p[0], p[1]) {
         Some(true) => BLACK,

@@ -39,7 +39,7 @@ pub struct CharucoBoard {
 impl CharucoBoard {
     /// Whether square `(i, j)` is black.
     pub fn square_is_black(&self, i: usize, j: usize) -> bool {
-        if self.legacy && self.squares_y % 2 == 0 {
+        if self.legacy && self.squares_y.is_multiple_of(2) {
             (j + 1) % 2 == i % 2
         } else {
             j % 2 == i % 2

@@ -29,8 +29,11 @@ pub struct Dictionary {
     max_correction: u32,
 }
 
-/// Every dictionary by name: (name, bits per side, all codes of the family, prefix table).
-const FAMILIES: [(usize, &[u64], &[(&str, usize, u32)]); 4] = [
+/// (name, number of codes, OpenCV `maxCorrectionBits`) of each dictionary of a family.
+type Prefixes = &'static [(&'static str, usize, u32)];
+
+/// Every family: bits per side, all its codes, its dictionaries.
+const FAMILIES: [(usize, &[u64], Prefixes); 4] = [
     (
         dict_data::DICT_4X4_1000_SIZE,
         &dict_data::DICT_4X4_1000,
