@@ -50,7 +50,7 @@
 mod candidates;
 mod grid;
 mod order;
-mod subpix;
+pub(crate) mod subpix;
 
 #[cfg(test)]
 mod tests;
