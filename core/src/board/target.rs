@@ -456,3 +456,47 @@ pub fn detect_target(img: &Gray, spec: &TargetSpec, opts: &TargetOptions) -> Tar
         warnings,
     }
 }
+
+/// Every target calibrates: its ids and board positions are what the solvers need. Only a
+/// plain chessboard is ambiguous under a half-turn (marker boards carry their ids).
+impl crate::calib::PlanarTarget for TargetSpec {
+    fn validate(&self) -> CoreResult<()> {
+        TargetSpec::validate(self)
+    }
+
+    fn num_points(&self) -> usize {
+        self.num_corners()
+    }
+
+    fn object_point(&self, id: usize) -> Option<Vector3<f64>> {
+        TargetSpec::object_point(self, id)
+    }
+
+    fn describe(&self) -> String {
+        match self {
+            Self::Chessboard { cols, rows, .. } => format!("{cols}×{rows} chessboard"),
+            Self::Charuco {
+                squares_x,
+                squares_y,
+                dictionary,
+                ..
+            } => format!("{squares_x}×{squares_y} ChArUco board ({dictionary})"),
+            Self::Aprilgrid {
+                tag_cols, tag_rows, ..
+            } => format!("{tag_cols}×{tag_rows} AprilGrid"),
+        }
+    }
+
+    fn half_turn(&self) -> Option<crate::lie::Se3> {
+        match self {
+            Self::Chessboard { cols, rows, square } => crate::calib::PlanarTarget::half_turn(
+                &crate::calib::BoardGeometry {
+                    cols: *cols,
+                    rows: *rows,
+                    square: *square,
+                },
+            ),
+            _ => None,
+        }
+    }
+}

@@ -5,6 +5,7 @@
 //! progress, cancellation and a time limit, and the offline CLI runs the very same code.
 
 pub mod blur_score;
+pub mod board_detection;
 pub mod camera_calibration;
 pub mod deblur;
 mod debug;
@@ -120,6 +121,7 @@ pub fn kinds() -> &'static [&'static dyn JobKind] {
         &Registered(photometric::PhotometricCorrect),
         &Registered(deblur::Deblur),
         &Registered(rig_calibration::RigCalibration),
+        &Registered(board_detection::BoardDetection),
     ];
     KINDS
 }
