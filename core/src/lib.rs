@@ -21,6 +21,8 @@ pub mod progress;
 pub mod synth;
 #[cfg(test)]
 mod test_env;
+#[cfg(feature = "video")]
+pub mod video;
 
 pub use error::{CoreError, CoreResult};
 pub use progress::{NoProgress, Progress};
