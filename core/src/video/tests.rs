@@ -298,18 +298,11 @@ fn bad_tables_and_matrices_are_refused() {
     });
     assert_eq!(code(&short_stts).code(), "video_malformed");
 
-    let hevc = edit_moov(&clip, |m| {
-        let avc1 = match &m.trak[0].mdia.minf.stbl.stsd.codecs[0] {
-            mp4_atom::Codec::Avc1(a) => a.clone(),
-            _ => unreachable!(),
-        };
-        m.trak[0].mdia.minf.stbl.stsd.codecs[0] =
-            mp4_atom::Codec::Unknown(mp4_atom::FourCC::new(b"apcn"), {
-                let mut b = Vec::new();
-                mp4_atom::Encode::encode(&avc1.visual, &mut b).unwrap();
-                b
-            });
-    });
+    // An Apple ProRes sample entry: the `avc1` code after `stsd` renamed.
+    let mut hevc = clip.clone();
+    let stsd = hevc.windows(4).position(|w| w == b"stsd").unwrap();
+    let at = stsd + hevc[stsd..].windows(4).position(|w| w == b"avc1").unwrap();
+    hevc[at..at + 4].copy_from_slice(b"apcn");
     let e = code(&hevc);
     assert_eq!(e.code(), "video_codec_unsupported");
     assert!(
