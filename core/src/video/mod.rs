@@ -150,7 +150,7 @@ pub(crate) fn check(info: &VideoInfo, limits: &VideoLimits) -> Result<(), VideoE
             max_frames: limits.max_frames,
         });
     }
-    if !(info.duration_s <= limits.max_duration_s) {
+    if info.duration_s.is_nan() || info.duration_s > limits.max_duration_s {
         return Err(VideoError::TooLong {
             duration_s: info.duration_s,
             max_s: limits.max_duration_s,

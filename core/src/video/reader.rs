@@ -191,7 +191,7 @@ impl<R: Read + Seek> FrameReader<R> {
             .map(|i| {
                 let idx = rank[i];
                 let t = track.samples[i].pts as f64 / ts;
-                idx % stride == 0
+                idx.is_multiple_of(stride)
                     && options.time_range.is_none_or(|(a, b)| t >= a && t <= b)
                     && options.indices.as_ref().is_none_or(|s| s.contains(&idx))
             })

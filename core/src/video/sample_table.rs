@@ -109,18 +109,18 @@ pub(crate) fn build(
     };
 
     let mut samples = Vec::with_capacity(n);
-    for i in 0..n {
+    for (i, ((&offset, &dts), &keyframe)) in offsets.iter().zip(&dts).zip(&keyframes).enumerate() {
         let offset_ct = ctts.next().unwrap_or(0);
-        let pts = dts[i]
+        let pts = dts
             .checked_add(offset_ct)
             .and_then(|p| p.checked_add(shift))
             .ok_or_else(|| bad("presentation time overflows"))?;
         samples.push(Sample {
-            offset: offsets[i],
+            offset,
             size: size_of(i),
-            dts: dts[i],
+            dts,
             pts,
-            keyframe: keyframes[i],
+            keyframe,
         });
     }
     Ok((samples, duration))

@@ -281,8 +281,10 @@ fn bad_tables_and_matrices_are_refused() {
         };
     });
     assert_eq!(code(&huge).code(), "video_too_many_frames");
-    let mut few = VideoLimits::default();
-    few.max_frames = u64::MAX;
+    let few = VideoLimits {
+        max_frames: u64::MAX,
+        ..Default::default()
+    };
     let e = probe(Cursor::new(&huge), &few).unwrap_err();
     assert_eq!(e.code(), "video_malformed", "{e}");
 

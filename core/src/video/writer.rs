@@ -105,13 +105,13 @@ pub fn encode_h264_mp4_with<I: EncodableImage>(
     fps: f64,
     options: &WriterOptions,
 ) -> Result<Vec<u8>, VideoError> {
-    let err = |m: String| VideoError::Encode(m);
+    let err = VideoError::Encode;
     let first = frames.first().ok_or_else(|| err("no frames".into()))?;
     let (w, h) = first.size();
     if w == 0
         || h == 0
-        || w % 2 == 1
-        || h % 2 == 1
+        || !w.is_multiple_of(2)
+        || !h.is_multiple_of(2)
         || w > u32::from(u16::MAX)
         || h > u32::from(u16::MAX)
     {
