@@ -80,3 +80,37 @@ pub fn zip(data: &[u8]) {
         &mut sink,
     );
 }
+
+/// MP4/MOV demuxing and decoding (feature `video`): probe, then every frame, with limits small
+/// enough that a fuzzer cannot make the decoder allocate or work much.
+#[cfg(feature = "video")]
+pub fn video(data: &[u8]) {
+    use crate::video::{FrameFormat, FrameOptions, FrameReader, VideoLimits};
+    let limits = VideoLimits {
+        max_duration_s: 600.0,
+        max_pixels: 640 * 480,
+        max_frames: 400,
+        max_decoded_bytes: 256 << 20,
+        max_sample_bytes: 1 << 20,
+    };
+    let _ = crate::video::inspect(std::io::Cursor::new(data), &limits);
+    if crate::video::probe(std::io::Cursor::new(data), &limits).is_err() {
+        return;
+    }
+    let format = if data.len() % 2 == 0 {
+        FrameFormat::Luma
+    } else {
+        FrameFormat::Rgb
+    };
+    let options = FrameOptions {
+        format,
+        ..Default::default()
+    };
+    if let Ok(reader) = FrameReader::open(std::io::Cursor::new(data), &limits, options) {
+        for item in reader.take(1000) {
+            if item.is_err() {
+                break;
+            }
+        }
+    }
+}

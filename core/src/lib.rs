@@ -22,6 +22,8 @@ pub mod rig;
 pub mod synth;
 #[cfg(test)]
 mod test_env;
+#[cfg(feature = "video")]
+pub mod video;
 
 pub use error::{CoreError, CoreResult};
 pub use progress::{NoProgress, Progress};

@@ -45,6 +45,17 @@ fn corpora_and_regressions_replay_without_panics() {
     }
 }
 
+/// The video target (feature `video`): its corpus of small clips and every input that once
+/// crashed it.
+#[cfg(feature = "video")]
+#[test]
+fn video_corpus_and_regressions_replay_without_panics() {
+    let run: Harness = caliper_core::fuzz_harness::video;
+    let corpus = replay("corpus", "video", run);
+    assert!(corpus > 0, "the video corpus is empty");
+    replay("regressions", "video", run);
+}
+
 #[test]
 fn hand_made_archives_get_the_right_verdict() {
     use caliper_core::io::archive::{ArchiveFault, ArchiveLimits, unpack};

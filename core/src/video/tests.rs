@@ -1,0 +1,335 @@
+//! Unit tests on clips made by the writer (no shared data needed).
+
+use std::io::Cursor;
+
+use image::{GrayImage, Luma, Rgb, RgbImage};
+
+use super::*;
+
+/// A gray test pattern that moves with `t`: a ramp plus a bright square.
+pub(crate) fn pattern(w: u32, h: u32, t: u32) -> GrayImage {
+    GrayImage::from_fn(w, h, |x, y| {
+        let sq = (x + 3 * t) % w < w / 4 && y > h / 4 && y < h / 2;
+        Luma([if sq {
+            230
+        } else {
+            (40 + (x * 120 / w) + (y * 60 / h)) as u8
+        }])
+    })
+}
+
+pub(crate) fn psnr(a: &GrayImage, b: &GrayImage) -> f64 {
+    assert_eq!(a.dimensions(), b.dimensions());
+    let mse = a
+        .as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(&p, &q)| (f64::from(p) - f64::from(q)).powi(2))
+        .sum::<f64>()
+        / a.as_raw().len() as f64;
+    if mse == 0.0 {
+        99.0
+    } else {
+        10.0 * (255.0f64 * 255.0 / mse).log10()
+    }
+}
+
+fn luma_frames(clip: &[u8], options: FrameOptions) -> (Vec<Frame>, Option<VideoError>) {
+    let reader = FrameReader::open(Cursor::new(clip), &VideoLimits::default(), options).unwrap();
+    let mut frames = Vec::new();
+    let mut err = None;
+    for f in reader {
+        match f {
+            Ok(f) => frames.push(f),
+            Err(e) => err = Some(e),
+        }
+    }
+    (frames, err)
+}
+
+#[test]
+fn round_trip_gray_clip() {
+    let src: Vec<GrayImage> = (0..20).map(|t| pattern(96, 64, t)).collect();
+    let clip = encode_h264_mp4(&src, 25.0).unwrap();
+    let info = probe(Cursor::new(&clip), &VideoLimits::default()).unwrap();
+    assert_eq!((info.width, info.height, info.frame_count), (96, 64, 20));
+    assert!((info.fps - 25.0).abs() < 1e-9, "{}", info.fps);
+    assert!((info.duration_s - 0.8).abs() < 1e-9);
+    assert!(matches!(info.codec, Codec::H264 { .. }), "{:?}", info.codec);
+    assert!(info.keyframe_count >= 1 && !info.truncated);
+    let (frames, err) = luma_frames(&clip, FrameOptions::default());
+    assert!(err.is_none(), "{err:?}");
+    assert_eq!(frames.len(), 20);
+    for (i, f) in frames.iter().enumerate() {
+        assert_eq!(f.index, i as u64);
+        assert!((f.pts_s - i as f64 / 25.0).abs() < 1e-9);
+        let FrameImage::Luma(img) = &f.image else {
+            panic!("luma expected")
+        };
+        let p = psnr(img, &src[i]);
+        assert!(p > 35.0, "frame {i}: PSNR {p:.1}");
+    }
+    assert!(frames[0].keyframe);
+}
+
+#[test]
+fn round_trip_rgb_and_rotation() {
+    let src: Vec<RgbImage> = (0..6)
+        .map(|t| {
+            RgbImage::from_fn(64, 48, |x, y| {
+                Rgb([(x * 4) as u8, (y * 5) as u8, (t * 40) as u8])
+            })
+        })
+        .collect();
+    for rot in [0u16, 90, 180, 270] {
+        let opts = WriterOptions {
+            rotation_deg: rot,
+            ..Default::default()
+        };
+        let clip = encode_h264_mp4_with(&src, 30.0, &opts).unwrap();
+        let info = probe(Cursor::new(&clip), &VideoLimits::default()).unwrap();
+        assert_eq!(info.rotation_deg, rot);
+        let expect = if rot % 180 == 90 { (48, 64) } else { (64, 48) };
+        assert_eq!((info.display_width, info.display_height), expect);
+        let options = FrameOptions {
+            format: FrameFormat::Rgb,
+            ..Default::default()
+        };
+        let (frames, err) = luma_frames(&clip, options);
+        assert!(err.is_none());
+        assert_eq!(frames.len(), 6);
+        let FrameImage::Rgb(img) = &frames[3].image else {
+            panic!("rgb expected")
+        };
+        assert_eq!(img.dimensions(), expect);
+        let want = match rot {
+            90 => image::imageops::rotate90(&src[3]),
+            180 => image::imageops::rotate180(&src[3]),
+            270 => image::imageops::rotate270(&src[3]),
+            _ => src[3].clone(),
+        };
+        let p = psnr(
+            &image::DynamicImage::ImageRgb8(img.clone()).to_luma8(),
+            &image::DynamicImage::ImageRgb8(want).to_luma8(),
+        );
+        assert!(p > 30.0, "rotation {rot}: PSNR {p:.1}");
+    }
+}
+
+#[test]
+fn selection_stride_range_and_indices() {
+    let src: Vec<GrayImage> = (0..30).map(|t| pattern(64, 48, t)).collect();
+    let clip = encode_h264_mp4(&src, 30.0).unwrap();
+    let idx = |o: FrameOptions| {
+        luma_frames(&clip, o)
+            .0
+            .iter()
+            .map(|f| f.index)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(
+        idx(FrameOptions {
+            stride: 10,
+            ..Default::default()
+        }),
+        vec![0, 10, 20]
+    );
+    assert_eq!(
+        idx(FrameOptions {
+            time_range: Some((0.5, 0.6)),
+            ..Default::default()
+        }),
+        vec![15, 16, 17, 18]
+    );
+    assert_eq!(
+        idx(FrameOptions {
+            indices: Some([3, 29].into()),
+            ..Default::default()
+        }),
+        vec![3, 29]
+    );
+}
+
+#[test]
+fn cancel_hook_stops() {
+    let src: Vec<GrayImage> = (0..10).map(|t| pattern(32, 32, t)).collect();
+    let clip = encode_h264_mp4(&src, 10.0).unwrap();
+    let mut reader = FrameReader::open(
+        Cursor::new(&clip),
+        &VideoLimits::default(),
+        FrameOptions::default(),
+    )
+    .unwrap();
+    let calls = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let c = calls.clone();
+    reader.set_cancel(move || c.fetch_add(1, std::sync::atomic::Ordering::SeqCst) >= 3);
+    let items: Vec<_> = reader.collect();
+    assert!(matches!(items.last(), Some(Err(VideoError::Canceled))));
+    assert!(items.len() <= 4);
+}
+
+#[test]
+fn truncated_clip_decodes_a_prefix_and_reports_the_break() {
+    let src: Vec<GrayImage> = (0..24).map(|t| pattern(64, 48, t)).collect();
+    let clip = encode_h264_mp4(&src, 24.0).unwrap();
+    for frac in [0.5, 0.8, 0.95] {
+        let cut = &clip[..(clip.len() as f64 * frac) as usize];
+        let info = probe(Cursor::new(cut), &VideoLimits::default()).unwrap();
+        assert!(info.truncated && info.frames_in_file < 24);
+        let (frames, err) = luma_frames(cut, FrameOptions::default());
+        assert!(
+            !frames.is_empty() && frames.len() < 24,
+            "{frac}: {}",
+            frames.len()
+        );
+        match err {
+            Some(VideoError::Truncated { after_frame, .. }) => {
+                assert_eq!(after_frame, frames.last().map(|f| f.index));
+            }
+            other => panic!("{frac}: expected Truncated, got {other:?}"),
+        }
+    }
+    // Cut inside the index: refused up front.
+    let e = probe(Cursor::new(&clip[..200]), &VideoLimits::default()).unwrap_err();
+    assert!(
+        matches!(e.code(), "video_malformed" | "video_moov_missing"),
+        "{e}"
+    );
+}
+
+#[test]
+fn limits_are_enforced_at_probe() {
+    let src: Vec<GrayImage> = (0..10).map(|t| pattern(64, 48, t)).collect();
+    let clip = encode_h264_mp4(&src, 10.0).unwrap();
+    let lim = |f: fn(&mut VideoLimits)| {
+        let mut l = VideoLimits::default();
+        f(&mut l);
+        probe(Cursor::new(&clip), &l).unwrap_err().code()
+    };
+    assert_eq!(lim(|l| l.max_duration_s = 0.5), "video_too_long");
+    assert_eq!(lim(|l| l.max_pixels = 1000), "video_too_large");
+    assert_eq!(lim(|l| l.max_frames = 5), "video_too_many_frames");
+    assert_eq!(
+        lim(|l| l.max_decoded_bytes = 1000),
+        "video_decoded_bytes_over_limit"
+    );
+    assert_eq!(lim(|l| l.max_sample_bytes = 10), "video_sample_too_large");
+}
+
+#[test]
+fn garbage_and_other_containers_are_refused() {
+    let e = probe(
+        Cursor::new(b"RIFF\0\0\0\0AVI LIST".to_vec()),
+        &VideoLimits::default(),
+    )
+    .unwrap_err();
+    assert_eq!(e.code(), "video_container_unsupported");
+    assert!(e.to_string().contains("AVI"));
+    let e = probe(Cursor::new(vec![7u8; 100]), &VideoLimits::default()).unwrap_err();
+    assert_eq!(e.code(), "video_container_unsupported");
+    let e = probe(Cursor::new(Vec::new()), &VideoLimits::default()).unwrap_err();
+    assert_eq!(e.code(), "video_container_unsupported");
+    // An mdat cut short with no index: the interrupted recording.
+    let mut cut = b"\0\0\0\x10ftypisom\0\0\0\0".to_vec();
+    cut.extend_from_slice(b"\0\x10\0\0mdat");
+    cut.extend_from_slice(&[0u8; 100]);
+    let e = probe(Cursor::new(cut), &VideoLimits::default()).unwrap_err();
+    assert!(
+        matches!(e, VideoError::MoovMissing { mdat_cut: true }),
+        "{e}"
+    );
+}
+
+/// Re-encodes the `moov` of a writer clip after `edit` (its size must not change for the
+/// chunk offsets to stay right, which holds for edits of fixed-size fields).
+pub(crate) fn edit_moov(clip: &[u8], edit: impl FnOnce(&mut mp4_atom::Moov)) -> Vec<u8> {
+    use mp4_atom::{Decode, Encode};
+    let ftyp_len = u32::from_be_bytes(clip[0..4].try_into().unwrap()) as usize;
+    let moov_len = u32::from_be_bytes(clip[ftyp_len..ftyp_len + 4].try_into().unwrap()) as usize;
+    let mut moov = mp4_atom::Moov::decode(&mut &clip[ftyp_len..ftyp_len + moov_len]).unwrap();
+    edit(&mut moov);
+    let mut out = clip[..ftyp_len].to_vec();
+    moov.encode(&mut out).unwrap();
+    out.extend_from_slice(&clip[ftyp_len + moov_len..]);
+    out
+}
+
+#[test]
+fn bad_tables_and_matrices_are_refused() {
+    use mp4_atom::StszSamples;
+    let src: Vec<GrayImage> = (0..8).map(|t| pattern(32, 32, t)).collect();
+    let clip = encode_h264_mp4(&src, 8.0).unwrap();
+    let code = |c: &[u8]| probe(Cursor::new(c), &VideoLimits::default()).unwrap_err();
+
+    let sheared = edit_moov(&clip, |m| m.trak[0].tkhd.matrix.b = 1 << 14);
+    let e = code(&sheared);
+    assert_eq!(e.code(), "video_matrix_unsupported", "{e}");
+    let mirrored = edit_moov(&clip, |m| m.trak[0].tkhd.matrix.a = -(1 << 16));
+    assert_eq!(code(&mirrored).code(), "video_matrix_unsupported");
+
+    let empty = edit_moov(&clip, |m| {
+        if let StszSamples::Different { sizes } = &mut m.trak[0].mdia.minf.stbl.stsz.samples {
+            sizes[3] = 0;
+        }
+    });
+    assert_eq!(code(&empty).code(), "video_empty_sample");
+
+    let huge = edit_moov(&clip, |m| {
+        m.trak[0].mdia.minf.stbl.stsz.samples = StszSamples::Identical {
+            count: u32::MAX,
+            size: 100,
+        };
+    });
+    assert_eq!(code(&huge).code(), "video_too_many_frames");
+    let few = VideoLimits {
+        max_frames: u64::MAX,
+        ..Default::default()
+    };
+    let e = probe(Cursor::new(&huge), &few).unwrap_err();
+    assert_eq!(e.code(), "video_malformed", "{e}");
+
+    let absurd = edit_moov(&clip, |m| {
+        if let StszSamples::Different { sizes } = &mut m.trak[0].mdia.minf.stbl.stsz.samples {
+            sizes[2] = u32::MAX;
+        }
+    });
+    assert_eq!(code(&absurd).code(), "video_sample_too_large");
+
+    let short_stts = edit_moov(&clip, |m| {
+        m.trak[0].mdia.minf.stbl.stts.entries[0].sample_count = 3
+    });
+    assert_eq!(code(&short_stts).code(), "video_malformed");
+
+    // An Apple ProRes sample entry: the `avc1` code after `stsd` renamed.
+    let mut hevc = clip.clone();
+    let stsd = hevc.windows(4).position(|w| w == b"stsd").unwrap();
+    let at = stsd + hevc[stsd..].windows(4).position(|w| w == b"avc1").unwrap();
+    hevc[at..at + 4].copy_from_slice(b"apcn");
+    let e = code(&hevc);
+    assert_eq!(e.code(), "video_codec_unsupported");
+    assert!(
+        e.to_string().contains("ProRes") && e.to_string().contains("ffmpeg -i in.mov -c:v libx264"),
+        "{e}"
+    );
+    let info = inspect(Cursor::new(&hevc), &VideoLimits::default()).unwrap();
+    assert_eq!((info.width, info.height), (32, 32));
+}
+
+#[test]
+fn no_decodable_frame_is_reported() {
+    let src: Vec<GrayImage> = (0..8).map(|t| pattern(32, 32, t)).collect();
+    let mut clip = encode_h264_mp4(&src, 8.0).unwrap();
+    // Overwrite the media data (after the 8-byte mdat header) with noise.
+    let ftyp_len = u32::from_be_bytes(clip[0..4].try_into().unwrap()) as usize;
+    let moov_len = u32::from_be_bytes(clip[ftyp_len..ftyp_len + 4].try_into().unwrap()) as usize;
+    let start = ftyp_len + moov_len + 8;
+    let mut x = 12345u32;
+    for b in &mut clip[start..] {
+        x = x.wrapping_mul(1_103_515_245).wrapping_add(12345);
+        *b = (x >> 16) as u8;
+    }
+    let (frames, err) = luma_frames(&clip, FrameOptions::default());
+    assert!(frames.is_empty());
+    let e = err.expect("an error");
+    assert_eq!(e.code(), "video_no_decodable_frame", "{e}");
+}
