@@ -23,7 +23,7 @@ use common::median;
 fn scene(w: u32, h: u32, t: u32) -> RgbImage {
     RgbImage::from_fn(w, h, |x, y| {
         let xs = x + 4 * t;
-        let checker = ((xs / 40) + (y / 40)) % 2 == 0;
+        let checker = ((xs / 40) + (y / 40)).is_multiple_of(2);
         let n = (xs.wrapping_mul(2_654_435_761) ^ y.wrapping_mul(40_503)) >> 27;
         let base = if checker { 200 } else { 50 } as u32;
         Rgb([

@@ -97,7 +97,7 @@ pub fn video(data: &[u8]) {
     if crate::video::probe(std::io::Cursor::new(data), &limits).is_err() {
         return;
     }
-    let format = if data.len() % 2 == 0 {
+    let format = if data.len().is_multiple_of(2) {
         FrameFormat::Luma
     } else {
         FrameFormat::Rgb

@@ -489,13 +489,13 @@ impl crate::calib::PlanarTarget for TargetSpec {
 
     fn half_turn(&self) -> Option<crate::lie::Se3> {
         match self {
-            Self::Chessboard { cols, rows, square } => crate::calib::PlanarTarget::half_turn(
-                &crate::calib::BoardGeometry {
+            Self::Chessboard { cols, rows, square } => {
+                crate::calib::PlanarTarget::half_turn(&crate::calib::BoardGeometry {
                     cols: *cols,
                     rows: *rows,
                     square: *square,
-                },
-            ),
+                })
+            }
             _ => None,
         }
     }
