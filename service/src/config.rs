@@ -154,6 +154,12 @@ settings! {
     /// Largest image side accepted at upload (and by every job).
     max_image_side: u32 = 16_384,
         env "CALIPER_MAX_IMAGE_SIDE", help "Largest image side, pixels [default: 16384].";
+    /// Longest video clip accepted at upload, seconds.
+    video_max_duration_secs: u64 = 300,
+        env "CALIPER_VIDEO_MAX_DURATION_SECS", help "Longest video clip, seconds [default: 300].";
+    /// Most frames in a video clip accepted at upload.
+    video_max_frames: u64 = 18_000,
+        env "CALIPER_VIDEO_MAX_FRAMES", help "Most frames in a video clip [default: 18000].";
     /// Largest total uncompressed size of an archive.
     max_archive_bytes: u64 = 4 << 30,
         env "CALIPER_MAX_ARCHIVE_BYTES", help "Largest uncompressed archive, bytes [default: 4294967296].";
@@ -363,6 +369,16 @@ impl Config {
                 .copied()
                 .unwrap_or(self.job_time_limit_secs),
         )
+    }
+
+    /// Video limits for upload probing and decoding (frame size as for images).
+    pub fn video_limits(&self) -> caliper_core::video::VideoLimits {
+        caliper_core::video::VideoLimits {
+            max_duration_s: self.video_max_duration_secs as f64,
+            max_frames: self.video_max_frames,
+            max_pixels: self.max_image_pixels,
+            ..Default::default()
+        }
     }
 
     /// Image limits for upload validation and decoding.

@@ -78,13 +78,12 @@ async fn sixteen_bit_tiff_imu_log_and_video_are_accepted() {
     assert_eq!(st, 201, "{ds}");
     assert_eq!(ds["files"][0]["media_type"], "application/gzip");
 
-    let mut mp4 = vec![0, 0, 0, 0x18];
-    mp4.extend_from_slice(b"ftypmp42\0\0\0\0mp42isom");
-    mp4.extend(std::iter::repeat_n(7u8, 4096));
+    let mp4 = crate::video::clip(8, 64, 48);
     let (st, ds, _) = s.upload(vec![("clip.mp4", mp4)]).await;
     assert_eq!(st, 201, "{ds}");
     assert_eq!(ds["kind"], "video");
     assert_eq!(ds["files"][0]["media_type"], "video/mp4");
+    assert_eq!(ds["files"][0]["video"]["frame_count"], 8, "{ds}");
 
     // A job kind refuses a dataset of the wrong kind.
     let (st, p) = s

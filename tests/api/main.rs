@@ -26,3 +26,4 @@ mod recovery;
 mod registry;
 mod rig;
 mod s3;
+mod video;

@@ -348,7 +348,9 @@ fn validate(
     let Some((r, s)) = others.pop() else {
         return Err(ApiError::new("empty_upload", "no files"));
     };
+    let mut video = None;
     let kind = if s.is_video() {
+        video = Some(probe_video(&r, &cfg.video_limits())?);
         DatasetKind::Video
     } else {
         imu::validate(r.file.path(), s == Sniffed::Gzip)
@@ -373,11 +375,34 @@ fn validate(
                 size: r.size,
                 media_type: s.media_type().to_string(),
                 image: None,
-                video: None,
+                video,
             },
             r.file,
         )],
     ))
+}
+
+/// A clip's facts from its index (codec, size, rotation, rate, counts), or a 422 that names
+/// what is wrong: an unsupported codec or container (with the command that converts it), a
+/// clip over the limits, a damaged or truncated file. No frame is decoded here: decoding
+/// happens in the workers.
+fn probe_video(
+    r: &Received,
+    limits: &caliper_core::video::VideoLimits,
+) -> ApiResult<serde_json::Value> {
+    let file = std::fs::File::open(r.file.path()).map_err(ApiError::internal)?;
+    let info = caliper_core::video::probe(std::io::BufReader::new(file), limits)
+        .map_err(|e| ApiError::new(e.code(), format!("{:?}: {e}", r.name)))?;
+    if info.truncated {
+        return Err(ApiError::new(
+            "video_truncated",
+            format!(
+                "{:?} ends before its last frame (only {} of {} frames are in the file): upload the whole clip",
+                r.name, info.frames_in_file, info.frame_count
+            ),
+        ));
+    }
+    serde_json::to_value(&info).map_err(ApiError::internal)
 }
 
 /// Header within limits, then a full decode: a truncated or corrupt image is refused at
