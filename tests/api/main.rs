@@ -26,4 +26,5 @@ mod recovery;
 mod registry;
 mod rig;
 mod s3;
+mod targets;
 mod video;

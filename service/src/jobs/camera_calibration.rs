@@ -6,9 +6,12 @@
 //! are left out of the solve (with the reason) because motion-blurred corners bias it.
 
 use caliper_core::Progress;
-use caliper_core::board::{DetectOptions, Detection, detect_chessboard};
+use caliper_core::board::{TargetOptions, TargetSpec, detect_target};
 use caliper_core::calib::report::{coverage, coverage_svg, residuals_svg, view_rms_svg};
-use caliper_core::calib::{BoardGeometry, CalibOptions, ModelKind, ViewObservations, calibrate};
+use caliper_core::calib::{
+    BoardGeometry, CalibOptions, CornerObservation, ModelKind, PlanarTarget, ViewObservations,
+    calibrate,
+};
 use caliper_core::io::{ImageLimits, decode_gray8};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -79,7 +82,14 @@ fn default_model() -> ModelKind {
 #[serde(deny_unknown_fields)]
 #[schema(example = json!({"board": {"cols": 9, "rows": 6, "square": 0.025, "unit": "m"}, "model": "pinhole_radtan"}))]
 pub struct CameraCalibParams {
-    pub board: BoardParams,
+    /// A chessboard (inner corners, square size, unit). Give this or `target`.
+    #[serde(default)]
+    pub board: Option<BoardParams>,
+    /// Any target, described as for every job (`{"type": "chessboard" | "charuco" |
+    /// "aprilgrid", …}`); partial views of ChArUco boards and AprilGrids count. Sizes in the
+    /// unit translations should come out in. Give this or `board`.
+    #[serde(default)]
+    pub target: Option<TargetSpec>,
     /// `pinhole_radtan` (default; OpenCV k1 k2 p1 p2 k3), `kannala_brandt` (OpenCV fisheye
     /// k1..k4) or `double_sphere` (lenses near or past 180°).
     #[serde(default = "default_model")]
@@ -105,7 +115,7 @@ struct ImageOutcome {
     #[serde(skip_serializing_if = "Option::is_none")]
     excluded: Option<String>,
     #[serde(skip)]
-    points: Vec<[f64; 2]>,
+    points: Vec<CornerObservation>,
 }
 
 /// The `camera_calibration` job kind.
@@ -114,12 +124,16 @@ pub struct CameraCalibration;
 /// Flags of `caliper run camera-calibration`.
 #[derive(Debug, Clone, Args)]
 pub struct CameraCalibrationArgs {
-    /// Inner corners, COLSxROWS (e.g. 9x6).
+    /// Inner corners, COLSxROWS (e.g. 9x6), with `--square`; or give `--target`.
     #[arg(long)]
-    pub board: String,
+    pub board: Option<String>,
     /// Square side, in `--unit`.
     #[arg(long)]
-    pub square: f64,
+    pub square: Option<f64>,
+    /// The target as JSON instead of `--board`, e.g.
+    /// '{"type": "charuco", "squares_x": 5, "squares_y": 7, "square": 0.04, "marker": 0.02, "dictionary": "DICT_6X6_250"}'.
+    #[arg(long)]
+    pub target: Option<String>,
     /// Unit of `--square`: m, cm, mm, in, squares [default: m].
     #[arg(long)]
     pub unit: Option<String>,
@@ -141,9 +155,21 @@ impl Kind for CameraCalibration {
     type Cli = CameraCalibrationArgs;
 
     fn check(p: &mut CameraCalibParams) -> Result<(), ParamError> {
-        board_geometry(p)
-            .validate()
-            .map_err(|e| ParamError::from_core("", e))?;
+        match (&p.board, &p.target) {
+            (Some(b), None) => b
+                .geometry()
+                .validate()
+                .map_err(|e| ParamError::from_core("", e))?,
+            (None, Some(t)) => t
+                .validate()
+                .map_err(|e| ParamError::from_core("target", e))?,
+            _ => {
+                return Err(ParamError::new(
+                    "board",
+                    "give either `board` (a chessboard) or `target` (any target), not both",
+                ));
+            }
+        }
         p.options
             .validate(p.model)
             .map_err(|e| ParamError::from_core("", e))?;
@@ -159,8 +185,18 @@ impl Kind for CameraCalibration {
     }
 
     fn cli_params(a: &CameraCalibrationArgs, _: &CliContext<'_>) -> Result<Value, RunError> {
-        let (cols, rows) = board_flag(&a.board)?;
-        let mut params = json!({"board": {"cols": cols, "rows": rows, "square": a.square}});
+        let mut params = match (&a.board, a.square, &a.target) {
+            (Some(b), Some(square), None) => {
+                let (cols, rows) = board_flag(b)?;
+                json!({"board": {"cols": cols, "rows": rows, "square": square}})
+            }
+            (None, None, Some(t)) => json!({"target": crate::jobs::kind::json_flag("target", t)?}),
+            _ => {
+                return Err(RunError::Input(
+                    "give --board COLSxROWS with --square, or --target JSON".into(),
+                ));
+            }
+        };
         if let Some(u) = &a.unit {
             params["board"]["unit"] = json!(u);
         }
@@ -179,11 +215,11 @@ impl Kind for CameraCalibration {
         input: &JobInput,
         progress: &dyn Progress,
     ) -> Result<JobOutput, JobError> {
-        let board = board_geometry(&p);
+        let board = target_of(&p);
         let limits = ImageLimits::default();
         let total = input.files.len() as u64;
         let done = std::sync::atomic::AtomicU64::new(0);
-        let detect_opts = DetectOptions::default();
+        let detect_opts = TargetOptions::default();
         let outcomes: Vec<Result<ImageOutcome, JobError>> = input
             .files
             .par_iter()
@@ -196,12 +232,14 @@ impl Kind for CameraCalibration {
                     JobError::from(caliper_core::CoreError::input(format!("{}: {e}", f.name)))
                 })?;
                 let lap = caliper_core::blur::laplacian_variance(&gray);
-                let det = detect_chessboard(&gray, board.cols, board.rows, &detect_opts);
-                let (detected, points, excluded) = match det {
-                    Detection::Found { corners, .. } => (true, corners, None),
-                    Detection::NotFound { reason } => {
-                        (false, Vec::new(), Some(format!("no board: {reason}")))
-                    }
+                let det = detect_target(&gray, &board, &detect_opts);
+                let (detected, points, excluded) = match det.reason {
+                    None if !det.corners.is_empty() => (true, det.corners, None),
+                    reason => (
+                        false,
+                        Vec::new(),
+                        Some(format!("no board: {}", reason.unwrap_or_default())),
+                    ),
                 };
                 let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
                 progress.report("detecting", n, total);
@@ -237,20 +275,19 @@ impl Kind for CameraCalibration {
             return Err(permanent(
                 "no_solution",
                 format!(
-                    "{} of {} images have a usable {}×{} board; at least {} are needed",
+                    "{} of {} images have a usable {}; at least {} are needed",
                     used.len(),
                     images.len(),
-                    board.cols,
-                    board.rows,
+                    PlanarTarget::describe(&board),
                     caliper_core::calib::MIN_VIEWS
                 ),
             ));
         }
         let observations: Vec<ViewObservations> = used
             .iter()
-            .map(|i| {
-                let dense: Vec<Option<[f64; 2]>> = i.points.iter().map(|&c| Some(c)).collect();
-                ViewObservations::from_dense(i.name.clone(), &dense)
+            .map(|i| ViewObservations {
+                name: i.name.clone(),
+                corners: i.points.clone(),
             })
             .collect();
         progress.report("solving", 0, 1);
@@ -277,6 +314,7 @@ impl Kind for CameraCalibration {
             "camera": calib.camera,
             "image_size": calib.image_size,
             "board": p.board,
+            "target": board,
             "calibration": calib,
             "coverage": cov,
             "images": images,
@@ -290,11 +328,30 @@ impl Kind for CameraCalibration {
     }
 }
 
-fn board_geometry(p: &CameraCalibParams) -> BoardGeometry {
-    p.board.geometry()
+/// The target of the parameters (`board` is a chessboard target).
+pub(super) fn target_of(p: &CameraCalibParams) -> TargetSpec {
+    match (&p.target, &p.board) {
+        (Some(t), _) => t.clone(),
+        (None, Some(b)) => b.target(),
+        // `check` refuses parameters with neither.
+        (None, None) => TargetSpec::Chessboard {
+            cols: 0,
+            rows: 0,
+            square: 0.0,
+        },
+    }
 }
 
 impl BoardParams {
+    /// The board as a target description.
+    pub fn target(&self) -> TargetSpec {
+        TargetSpec::Chessboard {
+            cols: self.cols,
+            rows: self.rows,
+            square: self.square,
+        }
+    }
+
     /// The board as core describes it (the unit only labels the document).
     pub fn geometry(&self) -> BoardGeometry {
         BoardGeometry {

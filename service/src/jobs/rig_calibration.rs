@@ -9,8 +9,8 @@
 use std::collections::BTreeMap;
 
 use caliper_core::Progress;
-use caliper_core::board::{DetectOptions, Detection, detect_chessboard};
-use caliper_core::calib::{ModelKind, ViewObservations};
+use caliper_core::board::{TargetOptions, TargetSpec, detect_target};
+use caliper_core::calib::{CornerObservation, ModelKind, PlanarTarget, ViewObservations};
 use caliper_core::camera::Camera;
 use caliper_core::io::{Gray, ImageLimits, decode_gray8};
 use caliper_core::rig::{RigCameraInput, RigOptions, calibrate_rig, rectify_gray};
@@ -46,7 +46,13 @@ pub enum Pairing {
 #[serde(deny_unknown_fields)]
 #[schema(example = json!({"board": {"cols": 9, "rows": 6, "square": 0.025, "unit": "m"}, "model": "pinhole_radtan"}))]
 pub struct RigCalibParams {
-    pub board: BoardParams,
+    /// A chessboard. Give this or `target`.
+    #[serde(default)]
+    pub board: Option<BoardParams>,
+    /// Any target (`{"type": "chessboard" | "charuco" | "aprilgrid", …}`); with ChArUco and
+    /// AprilGrid, views where a camera sees part of the board count. Give this or `board`.
+    #[serde(default)]
+    pub target: Option<TargetSpec>,
     /// Model of every camera (default `pinhole_radtan`); see `models` for one per camera.
     #[serde(default = "default_model")]
     pub model: ModelKind,
@@ -83,12 +89,15 @@ pub struct RigCalibration;
 /// Flags of `caliper run rig-calibration` (inputs: one directory per camera, in order).
 #[derive(Debug, Clone, Args)]
 pub struct RigCalibrationArgs {
-    /// Inner corners, COLSxROWS (e.g. 9x6).
+    /// Inner corners, COLSxROWS (e.g. 9x6), with `--square`; or give `--target`.
     #[arg(long)]
-    pub board: String,
+    pub board: Option<String>,
     /// Square side, in `--unit`.
     #[arg(long)]
-    pub square: f64,
+    pub square: Option<f64>,
+    /// The target as JSON instead of `--board` (see `board_detection`).
+    #[arg(long)]
+    pub target: Option<String>,
     /// Unit of `--square`: m, cm, mm, in, squares [default: m].
     #[arg(long)]
     pub unit: Option<String>,
@@ -134,10 +143,21 @@ impl Kind for RigCalibration {
     type Cli = RigCalibrationArgs;
 
     fn check(p: &mut RigCalibParams) -> Result<(), ParamError> {
-        let board = p.board.geometry();
-        board
-            .validate()
-            .map_err(|e| ParamError::from_core("board", e))?;
+        match (&p.board, &p.target) {
+            (Some(b), None) => b
+                .geometry()
+                .validate()
+                .map_err(|e| ParamError::from_core("", e))?,
+            (None, Some(t)) => t
+                .validate()
+                .map_err(|e| ParamError::from_core("target", e))?,
+            _ => {
+                return Err(ParamError::new(
+                    "board",
+                    "give either `board` (a chessboard) or `target` (any target), not both",
+                ));
+            }
+        }
         p.options
             .validate()
             .map_err(|e| ParamError::from_core("options", e))?;
@@ -178,8 +198,18 @@ impl Kind for RigCalibration {
     }
 
     fn cli_params(a: &RigCalibrationArgs, ctx: &CliContext<'_>) -> Result<Value, RunError> {
-        let (cols, rows) = board_flag(&a.board)?;
-        let mut params = json!({"board": {"cols": cols, "rows": rows, "square": a.square}});
+        let mut params = match (&a.board, a.square, &a.target) {
+            (Some(b), Some(square), None) => {
+                let (cols, rows) = board_flag(b)?;
+                json!({"board": {"cols": cols, "rows": rows, "square": square}})
+            }
+            (None, None, Some(t)) => json!({"target": crate::jobs::kind::json_flag("target", t)?}),
+            _ => {
+                return Err(RunError::Input(
+                    "give --board COLSxROWS with --square, or --target JSON".into(),
+                ));
+            }
+        };
         if let Some(u) = &a.unit {
             params["board"]["unit"] = json!(u);
         }
@@ -214,7 +244,11 @@ impl Kind for RigCalibration {
         input: &JobInput,
         progress: &dyn Progress,
     ) -> Result<JobOutput, JobError> {
-        let board = p.board.geometry();
+        let board: TargetSpec = match (&p.target, &p.board) {
+            (Some(t), _) => t.clone(),
+            (None, Some(b)) => b.target(),
+            (None, None) => return Err(permanent("invalid_param", "no board or target")),
+        };
         let (names, shots) = group(input, &p)?;
         let frames = match p.pairing {
             Pairing::Order => pair_by_order(&names, &shots)?,
@@ -222,7 +256,7 @@ impl Kind for RigCalibration {
         };
         let n_frames = frames.len();
         let limits = ImageLimits::default();
-        let detect_opts = DetectOptions::default();
+        let detect_opts = TargetOptions::default();
         let total = shots.len() as u64;
         let done = std::sync::atomic::AtomicU64::new(0);
         let frame_of: Vec<Option<usize>> = {
@@ -234,7 +268,7 @@ impl Kind for RigCalibration {
             }
             v
         };
-        type Detected = (ImageOutcome, Vec<[f64; 2]>);
+        type Detected = (ImageOutcome, Vec<CornerObservation>);
         let detected: Vec<Result<Detected, JobError>> = shots
             .par_iter()
             .enumerate()
@@ -248,11 +282,13 @@ impl Kind for RigCalibration {
                         Some("no matching frame in the other cameras".to_string()),
                     )
                 } else {
-                    match detect_chessboard(&gray, board.cols, board.rows, &detect_opts) {
-                        Detection::Found { corners, .. } => (corners, None),
-                        Detection::NotFound { reason } => {
-                            (Vec::new(), Some(format!("no board: {reason}")))
-                        }
+                    let det = detect_target(&gray, &board, &detect_opts);
+                    match det.reason {
+                        None if !det.corners.is_empty() => (det.corners, None),
+                        r => (
+                            Vec::new(),
+                            Some(format!("no board: {}", r.unwrap_or_default())),
+                        ),
                     }
                 };
                 let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
@@ -299,20 +335,18 @@ impl Kind for RigCalibration {
                 if let Some(k) = row[c]
                     && !detected[k].1.is_empty()
                 {
-                    let dense: Vec<Option<[f64; 2]>> =
-                        detected[k].1.iter().map(|&x| Some(x)).collect();
-                    views[f] = Some(ViewObservations::from_dense(
-                        detected[k].0.name.clone(),
-                        &dense,
-                    ));
+                    views[f] = Some(ViewObservations {
+                        name: detected[k].0.name.clone(),
+                        corners: detected[k].1.clone(),
+                    });
                 }
             }
             if views.iter().all(Option::is_none) {
                 return Err(permanent(
                     "no_solution",
                     format!(
-                        "camera {name:?} never sees the {}×{} board",
-                        board.cols, board.rows
+                        "camera {name:?} never sees the {}",
+                        PlanarTarget::describe(&board)
                     ),
                 ));
             }
@@ -393,6 +427,7 @@ impl Kind for RigCalibration {
             "cameras": rig.cameras.iter().map(|c| json!({"name": c.name, "camera": c.camera, "image_size": c.image_size})).collect::<Vec<_>>(),
             "extrinsics": rig.extrinsics,
             "board": p.board,
+            "target": board,
             "rig": rig,
             "frames": frame_files,
             "images": images,
