@@ -90,3 +90,77 @@ fn shared_clip(name: &str) -> Option<Vec<u8>> {
         })?;
     std::fs::read(root.join("video").join(name)).ok()
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn blur_score_scores_every_frame_of_a_clip_and_picks_the_sharpest() {
+    let s = start().await;
+    // Every third frame sharp, the others blurred: the scores must tell them apart, and the
+    // picked frames must be sharp ones at least the asked spacing apart.
+    let sharp = sharp_image(160, 120);
+    let soft = box_blur(&sharp, 7);
+    let frames: Vec<image::GrayImage> = (0..45)
+        .map(|k| {
+            if k % 3 == 0 {
+                sharp.clone()
+            } else {
+                soft.clone()
+            }
+        })
+        .collect();
+    let mp4 = caliper_core::video::encode_h264_mp4(&frames, 30.0).expect("encode");
+    let (st, ds, _) = s.upload(vec![("shaky.mp4", mp4)]).await;
+    assert_eq!(st, 201, "{ds}");
+    let id = s
+        .job(
+            serde_json::json!({"kind": "blur_score", "dataset": ds["id"],
+            "params": {"select": {"count": 3, "min_spacing_s": 0.3}}}),
+        )
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    let p = &doc["parameters"];
+    let scored = p["frames"].as_array().expect("frames");
+    assert_eq!(scored.len(), 45);
+    let lap = |f: &serde_json::Value| f["laplacian_variance"].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        lap(&scored[0]) > 3.0 * lap(&scored[1]),
+        "{} vs {}",
+        lap(&scored[0]),
+        lap(&scored[1])
+    );
+    let picked: Vec<u64> = p["selected"]
+        .as_array()
+        .expect("selected")
+        .iter()
+        .map(|i| {
+            scored[i.as_u64().unwrap_or(0) as usize]["index"]
+                .as_u64()
+                .unwrap_or(1)
+        })
+        .collect();
+    assert_eq!(picked.len(), 3, "{picked:?}");
+    assert!(picked.iter().all(|i| i % 3 == 0), "{picked:?}");
+    let png = reqwest::get(s.url(&format!(
+        "/v1/jobs/{id}/artifacts/frame_{:06}.png",
+        picked[0]
+    )))
+    .await
+    .expect("get");
+    assert_eq!(png.status().as_u16(), 200);
+    let img = image::load_from_memory(&png.bytes().await.expect("bytes")).expect("png");
+    assert_eq!((img.width(), img.height()), (160, 120));
+    // Bad selection parameters are refused at the edge.
+    let (st, body) = s
+        .post_json("/v1/jobs", &serde_json::json!({"kind": "blur_score", "dataset": ds["id"], "params": {"select": {"count": 0}}}))
+        .await;
+    assert_eq!(st, 422, "{body}");
+    assert_eq!(body["field"], "params.select.count", "{body}");
+    // A kind that does not read clips says so.
+    let (st, body) = s
+        .post_json("/v1/jobs", &serde_json::json!({"kind": "camera_calibration", "dataset": ds["id"], "params": {"board": {"cols": 9, "rows": 6, "square": 0.025}}}))
+        .await;
+    assert_eq!(st, 422, "{body}");
+    assert_eq!(body["code"], "dataset_kind_mismatch");
+    s.stop().await;
+}

@@ -11,8 +11,11 @@
 //! are only starting points: [`score_images`] always returns the raw scores and a ranking so
 //! that users can calibrate thresholds on their own labelled frames.
 
+#[cfg(feature = "video")]
+pub mod clip;
 mod laplacian;
 mod plot;
+mod select;
 mod svd;
 
 #[cfg(test)]
@@ -29,6 +32,7 @@ use crate::progress::Progress;
 
 pub use laplacian::laplacian_variance;
 pub use plot::render_svg;
+pub use select::FrameSelection;
 pub use svd::{MAX_BETA_SIDE, reduction_factor, svd_beta};
 
 /// How the two per-score verdicts combine into `blurred`.
@@ -70,6 +74,8 @@ pub struct BlurParams {
     pub beta_threshold: f64,
     /// How the two criteria combine: `either` (default), `both`, `laplacian` or `beta`.
     pub rule: BlurRule,
+    /// Video datasets: how many of the sharpest frames to pick, and how far apart.
+    pub select: FrameSelection,
 }
 
 /// Largest accepted `laplacian_threshold` (a thousand times the largest possible variance).
@@ -82,6 +88,7 @@ impl Default for BlurParams {
             laplacian_threshold: 100.0,
             beta_threshold: 0.6,
             rule: BlurRule::Either,
+            select: FrameSelection::default(),
         }
     }
 }
@@ -106,7 +113,7 @@ impl BlurParams {
         if !(0.0..=1.0).contains(&self.beta_threshold) {
             return Err(CoreError::param("beta_threshold", "must be within [0, 1]"));
         }
-        Ok(())
+        self.select.validate()
     }
 
     /// The verdict for one image's scores.

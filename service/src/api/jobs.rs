@@ -138,13 +138,19 @@ pub async fn create_job(
             )
             .with_field("dataset")
         })?;
-    if dataset.kind != kind.dataset_kind() {
+    let video_ok = kind.accepts_video() && dataset.kind == crate::store::DatasetKind::Video;
+    if dataset.kind != kind.dataset_kind() && !video_ok {
         return Err(ApiError::new(
             "dataset_kind_mismatch",
             format!(
-                "{} needs a dataset of kind {}, but {} holds {}",
+                "{} needs a dataset of kind {}{}, but {} holds {}",
                 kind.name(),
                 kind.dataset_kind().as_str(),
+                if kind.accepts_video() {
+                    " or video"
+                } else {
+                    ""
+                },
                 dataset.id,
                 dataset.kind.as_str()
             ),

@@ -36,7 +36,8 @@ impl Kind for BlurScore {
     const NAME: &'static str = "blur_score";
     const SCHEMA: &'static str = "caliper.blur_score/v1";
     const DATASET: DatasetKind = DatasetKind::Images;
-    const DESCRIPTION: &'static str = "Score every image of a set for blur (Laplacian variance, singular-value feature), flag blurred ones and rank the set sharpest first.";
+    const ALSO_VIDEO: bool = true;
+    const DESCRIPTION: &'static str = "Score every image of a set, or every frame of a video clip, for blur (Laplacian variance, singular-value feature), flag blurred ones, rank the set sharpest first and pick a clip's sharpest frames spread over time.";
     type Params = BlurParams;
     type Cli = BlurScoreArgs;
 
@@ -67,6 +68,11 @@ impl Kind for BlurScore {
         input: &JobInput,
         progress: &dyn Progress,
     ) -> Result<JobOutput, JobError> {
+        if let [f] = input.files.as_slice()
+            && f.media_type.starts_with("video/")
+        {
+            return score_video(&params, input, progress);
+        }
         let names: Vec<String> = input.files.iter().map(|f| f.name.clone()).collect();
         let limits = caliper_core::io::ImageLimits::default();
         let load = |i: usize| -> caliper_core::CoreResult<Vec<u8>> {
@@ -97,4 +103,134 @@ impl Kind for BlurScore {
             artifacts: vec![Artifact::svg("scores.svg", svg)],
         })
     }
+}
+
+/// A video dataset: every frame scored on its luma plane, the sharpest picked (exported as PNG
+/// artifacts), and a time-series plot. The clip is spooled to a temporary file (decoding needs
+/// to seek; blob stores stream), never held in memory.
+fn score_video(
+    params: &BlurParams,
+    input: &JobInput,
+    progress: &dyn Progress,
+) -> Result<JobOutput, JobError> {
+    use caliper_core::video::{FrameFormat, FrameOptions, FrameReader, VideoLimits};
+    let f = &input.files[0];
+    let storage =
+        |e: std::io::Error| JobError::Transient(format!("storage: cannot read {}: {e}", f.name));
+    let mut spool = tempfile::tempfile().map_err(storage)?;
+    let mut src = (input.open)(f).map_err(storage)?;
+    std::io::copy(&mut src, &mut spool).map_err(storage)?;
+    let limits = VideoLimits::default();
+    let rewind = |file: &mut std::fs::File| {
+        std::io::Seek::rewind(file).map_err(storage)?;
+        file.try_clone().map_err(storage)
+    };
+    let report = caliper_core::blur::clip::score_clip(
+        std::io::BufReader::new(rewind(&mut spool)?),
+        &limits,
+        params,
+        progress,
+    )?;
+    // The picked frames as PNG: a second pass that converts only those.
+    let wanted: std::collections::BTreeSet<u64> = report
+        .selected
+        .iter()
+        .map(|&i| report.frames[i].index)
+        .collect();
+    let mut artifacts = Vec::new();
+    let options = FrameOptions {
+        format: FrameFormat::Luma,
+        indices: Some(wanted.clone()),
+        ..FrameOptions::default()
+    };
+    let mut reader = FrameReader::open(
+        std::io::BufReader::new(rewind(&mut spool)?),
+        &limits,
+        options,
+    )
+    .map_err(|e| JobError::from(caliper_core::CoreError::input(e.to_string())))?;
+    while let Some(Ok(frame)) = reader.next_frame() {
+        progress.check()?;
+        if !wanted.contains(&frame.index) {
+            continue;
+        }
+        let mut png = std::io::Cursor::new(Vec::new());
+        frame
+            .image
+            .into_luma()
+            .write_to(&mut png, image::ImageFormat::Png)
+            .map_err(|e| JobError::Permanent {
+                code: "internal_error",
+                message: format!("png: {e}"),
+            })?;
+        artifacts.push(Artifact {
+            name: format!("frame_{:06}.png", frame.index),
+            media_type: "image/png".into(),
+            data: png.into_inner().into(),
+        });
+    }
+    artifacts.push(Artifact::svg("frames.svg", clip_svg(&report, params)));
+    let quality = json!({
+        "frames": report.frames.len(),
+        "blurred": report.blurred_count,
+        "selected": report.selected.len(),
+        "laplacian_variance_median": median(report.frames.iter().map(|f| f.laplacian_variance).collect()),
+    });
+    Ok(JobOutput {
+        parameters: to_value(&report)?,
+        quality,
+        artifacts,
+    })
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+/// Laplacian variance over time (log scale), the threshold, and the picked frames.
+fn clip_svg(r: &caliper_core::blur::clip::ClipReport, params: &BlurParams) -> String {
+    let (w, h, m) = (800.0, 300.0, 40.0);
+    let t_max = r.frames.iter().map(|f| f.pts_s).fold(1e-9, f64::max);
+    let ly = |v: f64| v.max(1e-3).log10();
+    let (lo, hi) = r.frames.iter().fold(
+        (
+            ly(params.laplacian_threshold),
+            ly(params.laplacian_threshold),
+        ),
+        |(a, b), f| {
+            (
+                a.min(ly(f.laplacian_variance)),
+                b.max(ly(f.laplacian_variance)),
+            )
+        },
+    );
+    let span = (hi - lo).max(1e-6);
+    let x = |t: f64| m + (w - 2.0 * m) * t / t_max;
+    let y = |v: f64| h - m - (h - 2.0 * m) * (ly(v) - lo) / span;
+    let points: Vec<String> = r
+        .frames
+        .iter()
+        .map(|f| format!("{:.1},{:.1}", x(f.pts_s), y(f.laplacian_variance)))
+        .collect();
+    let mut svg = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" font-family=\"sans-serif\" font-size=\"12\">\
+         <text x=\"{m}\" y=\"20\">Laplacian variance per frame (log scale) over {t_max:.1} s; picked frames in green</text>\
+         <polyline fill=\"none\" stroke=\"#3366cc\" stroke-width=\"1\" points=\"{}\"/>\
+         <line x1=\"{m}\" x2=\"{}\" y1=\"{:.1}\" y2=\"{:.1}\" stroke=\"#cc3333\" stroke-dasharray=\"4 3\"/>",
+        points.join(" "),
+        w - m,
+        y(params.laplacian_threshold),
+        y(params.laplacian_threshold)
+    );
+    for &i in &r.selected {
+        let f = &r.frames[i];
+        svg.push_str(&format!(
+            "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"4\" fill=\"#22aa22\"/>",
+            x(f.pts_s),
+            y(f.laplacian_variance)
+        ));
+    }
+    svg.push_str("</svg>");
+    svg
 }

@@ -108,6 +108,8 @@ pub trait Kind: Send + Sync + 'static {
     const SCHEMA: &'static str;
     /// The dataset kind it reads.
     const DATASET: DatasetKind;
+    /// It also reads a video dataset (one clip) in place of `DATASET`.
+    const ALSO_VIDEO: bool = false;
     /// One line for `GET /v1/job-kinds` and `caliper run --help`.
     const DESCRIPTION: &'static str;
     /// Export formats of its documents.
@@ -138,6 +140,8 @@ pub trait JobKind: Send + Sync + 'static {
     fn name(&self) -> &'static str;
     fn schema(&self) -> &'static str;
     fn dataset_kind(&self) -> DatasetKind;
+    /// Also reads a video dataset.
+    fn accepts_video(&self) -> bool;
     fn description(&self) -> &'static str;
     fn exports(&self) -> &'static [Export];
     /// JSON Schema of the parameters, for `GET /v1/job-kinds`.
@@ -166,6 +170,9 @@ impl<K: Kind> JobKind for Registered<K> {
     }
     fn dataset_kind(&self) -> DatasetKind {
         K::DATASET
+    }
+    fn accepts_video(&self) -> bool {
+        K::ALSO_VIDEO
     }
     fn description(&self) -> &'static str {
         K::DESCRIPTION

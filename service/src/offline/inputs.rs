@@ -123,3 +123,44 @@ pub(super) fn log_file(paths: &[(PathBuf, bool)]) -> Result<Vec<(DatasetFile, Pa
         p.clone(),
     )])
 }
+
+/// One input file that is a video clip (by content).
+pub(super) fn single_video(paths: &[(PathBuf, bool)]) -> bool {
+    let [(p, _)] = paths else { return false };
+    let mut head = [0u8; 64];
+    let n = std::fs::File::open(p)
+        .and_then(|mut f| std::io::Read::read(&mut f, &mut head))
+        .unwrap_or(0);
+    caliper_core::io::sniff(&head[..n]).is_video()
+}
+
+/// Describe one video clip as a dataset would (probed like an upload).
+pub(super) fn video_file(
+    paths: &[(PathBuf, bool)],
+) -> Result<Vec<(DatasetFile, PathBuf)>, RunError> {
+    let [(p, _)] = paths else {
+        return Err(RunError::Input("give one video clip".into()));
+    };
+    let limits = crate::config::Config::default().video_limits();
+    let info =
+        caliper_core::video::probe(std::io::BufReader::new(std::fs::File::open(p)?), &limits)
+            .map_err(|e| RunError::Input(format!("{}: {e}", p.display())))?;
+    let mut head = [0u8; 64];
+    let n = std::io::Read::read(&mut std::fs::File::open(p)?, &mut head)?;
+    let mut hasher = <sha2::Sha256 as sha2::Digest>::new();
+    let size = std::io::copy(&mut std::fs::File::open(p)?, &mut hasher)?;
+    Ok(vec![(
+        DatasetFile {
+            name: p
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            sha256: hex::encode(sha2::Digest::finalize(hasher)),
+            size,
+            media_type: caliper_core::io::sniff(&head[..n]).media_type().to_string(),
+            image: None,
+            video: serde_json::to_value(&info).ok(),
+        },
+        p.clone(),
+    )])
+}

@@ -81,6 +81,11 @@ fn run_kind(kind: &dyn JobKind, params: Value, common: &CommonArgs) -> Result<St
     let params = kind.normalize_params(&params)?;
     let paths = inputs::expand(&common.inputs)?;
     let described = match kind.dataset_kind() {
+        crate::store::DatasetKind::Images
+            if kind.accepts_video() && inputs::single_video(&paths) =>
+        {
+            inputs::video_file(&paths)?
+        }
         crate::store::DatasetKind::Images => inputs::image_files(&paths)?,
         _ => inputs::log_file(&paths)?,
     };
