@@ -1,8 +1,8 @@
 //! Blur scores of every frame of a video clip, on the decoder's luma plane (no RGB round
 //! trip), and a choice of the sharpest frames spread over the clip.
 //!
-//! The selection is greedy: frames not judged blurred before the others, sharpest first
-//! (Laplacian variance),
+//! The selection is greedy: frames not judged blurred (all frames if every one is), sharpest
+//! first (Laplacian variance),
 //! each kept only if it is at least `min_spacing_s` from every frame already kept, until
 //! `count` frames are kept. Spacing matters more than the last bit of sharpness for what the
 //! frames are used for (calibration views, photometric samples): neighbouring frames of a clip
@@ -127,15 +127,16 @@ pub fn score_clip<R: Read + Seek>(
 
 /// Greedy sharpest-first selection with a minimum spacing (see the module docs).
 fn pick(frames: &[FrameScore], select: &FrameSelection) -> Vec<usize> {
-    // Frames the verdict passes first, then the rest (the verdict's thresholds depend on the
-    // camera: a clip it calls blurred throughout still has its sharpest frames); sharpest first.
-    let mut order: Vec<usize> = (0..frames.len()).collect();
+    // Only frames the verdict passes; all frames when it passes none (its thresholds depend
+    // on the camera: a clip it calls blurred throughout still has its sharpest frames).
+    let any_sharp = frames.iter().any(|f| !f.blurred);
+    let mut order: Vec<usize> = (0..frames.len())
+        .filter(|&i| !(any_sharp && frames[i].blurred))
+        .collect();
     order.sort_by(|&a, &b| {
-        frames[a].blurred.cmp(&frames[b].blurred).then(
-            frames[b]
-                .laplacian_variance
-                .total_cmp(&frames[a].laplacian_variance),
-        )
+        frames[b]
+            .laplacian_variance
+            .total_cmp(&frames[a].laplacian_variance)
     });
     let mut kept: Vec<usize> = Vec::new();
     for i in order {
