@@ -155,21 +155,7 @@ impl Kind for CameraCalibration {
     type Cli = CameraCalibrationArgs;
 
     fn check(p: &mut CameraCalibParams) -> Result<(), ParamError> {
-        match (&p.board, &p.target) {
-            (Some(b), None) => b
-                .geometry()
-                .validate()
-                .map_err(|e| ParamError::from_core("", e))?,
-            (None, Some(t)) => t
-                .validate()
-                .map_err(|e| ParamError::from_core("target", e))?,
-            _ => {
-                return Err(ParamError::new(
-                    "board",
-                    "give either `board` (a chessboard) or `target` (any target), not both",
-                ));
-            }
-        }
+        check_board_or_target(p.board.as_ref(), p.target.as_ref())?;
         p.options
             .validate(p.model)
             .map_err(|e| ParamError::from_core("", e))?;
@@ -185,18 +171,7 @@ impl Kind for CameraCalibration {
     }
 
     fn cli_params(a: &CameraCalibrationArgs, _: &CliContext<'_>) -> Result<Value, RunError> {
-        let mut params = match (&a.board, a.square, &a.target) {
-            (Some(b), Some(square), None) => {
-                let (cols, rows) = board_flag(b)?;
-                json!({"board": {"cols": cols, "rows": rows, "square": square}})
-            }
-            (None, None, Some(t)) => json!({"target": crate::jobs::kind::json_flag("target", t)?}),
-            _ => {
-                return Err(RunError::Input(
-                    "give --board COLSxROWS with --square, or --target JSON".into(),
-                ));
-            }
-        };
+        let mut params = board_or_target_flags(a.board.as_deref(), a.square, a.target.as_deref())?;
         if let Some(u) = &a.unit {
             params["board"]["unit"] = json!(u);
         }
@@ -411,5 +386,42 @@ fn apply_blur_policy(images: &mut [ImageOutcome], policy: &BlurPolicy) {
                 median
             ));
         }
+    }
+}
+
+/// `board` or `target`, exactly one, valid: the check every board-reading kind makes.
+pub(super) fn check_board_or_target(
+    board: Option<&BoardParams>,
+    target: Option<&TargetSpec>,
+) -> Result<(), ParamError> {
+    match (board, target) {
+        (Some(b), None) => b
+            .geometry()
+            .validate()
+            .map_err(|e| ParamError::from_core("", e)),
+        (None, Some(t)) => t.validate().map_err(|e| ParamError::from_core("target", e)),
+        _ => Err(ParamError::new(
+            "board",
+            "give either `board` (a chessboard) or `target` (any target), not both",
+        )),
+    }
+}
+
+/// The `board`/`target` parameters of the CLI flags `--board COLSxROWS --square S` or
+/// `--target JSON`.
+pub(super) fn board_or_target_flags(
+    board: Option<&str>,
+    square: Option<f64>,
+    target: Option<&str>,
+) -> Result<Value, RunError> {
+    match (board, square, target) {
+        (Some(b), Some(square), None) => {
+            let (cols, rows) = board_flag(b)?;
+            Ok(json!({"board": {"cols": cols, "rows": rows, "square": square}}))
+        }
+        (None, None, Some(t)) => Ok(json!({"target": crate::jobs::kind::json_flag("target", t)?})),
+        _ => Err(RunError::Input(
+            "give --board COLSxROWS with --square, or --target JSON".into(),
+        )),
     }
 }

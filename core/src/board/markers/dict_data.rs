@@ -2,6 +2,8 @@
 // (cv2.aruco.getPredefinedDictionary(..).bytesList). Do not edit by hand.
 // Per dictionary: marker size n, OpenCV's maxCorrectionBits of every prefix, codes
 // (n×n bits, row-major from the top-left, MSB first, 1 = white).
+// One file because it is one generated table (regenerated whole by the script, never edited):
+// splitting it would only split the generator's output.
 
 /// DICT_4X4_1000: 1000 codes of 4×4 bits.
 pub(super) const DICT_4X4_1000_SIZE: usize = 4;
