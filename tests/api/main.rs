@@ -6,6 +6,7 @@
 mod auth;
 mod browser;
 mod camera;
+mod clip_calibration;
 mod common;
 mod crash_loop;
 mod dashboard;

@@ -279,3 +279,59 @@ async fn vignetting_of_a_fisheye_uses_the_masked_spline() {
     assert_eq!(st, 422, "{prob}");
     s.stop().await;
 }
+
+/// An auto-exposure clip (the synthetic sequence encoded as H.264): `photometric_online` fits
+/// it like the frames as images, with the clip's own timestamps in `times.txt`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn photometric_online_fits_an_auto_exposure_clip() {
+    let cam = SynthCamera::reference(160, 120, 11);
+    let seq = render_ae_sequence(&cam, 80);
+    let frames: Vec<image::GrayImage> = seq
+        .frames
+        .iter()
+        .map(|f| {
+            image::GrayImage::from_raw(
+                f.width as u32,
+                f.height as u32,
+                f.data.iter().map(|&v| v as u8).collect(),
+            )
+            .expect("frame")
+        })
+        .collect();
+    let mp4 = caliper_core::video::encode_h264_mp4(&frames, 20.0).expect("encode");
+    let s = start().await;
+    let (st, ds, _) = s.upload(vec![("ae.mp4", mp4)]).await;
+    assert_eq!(st, 201, "{ds}");
+    // Every second frame (max_frames 40 of 80).
+    let id = s
+        .job(json!({"kind": "photometric_online", "dataset": ds["id"], "params": {"clip": {"max_frames": 40}}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    let clip = &doc["parameters"]["clip"];
+    assert_eq!(clip["stride"], 2, "{clip}");
+    assert_eq!(clip["frames_used"], 40, "{clip}");
+    let times = dso::read_times(&artifact_text(&s, &id, "times.txt").await).expect("times.txt");
+    assert_eq!(times.len(), 40);
+    assert_eq!(times[1].id, "000002");
+    assert!((times[1].timestamp - 0.1).abs() < 1e-6, "{:?}", times[1]);
+    let pcalib = artifact_text(&s, &id, "pcalib.txt").await;
+    let inv = dso::read_pcalib(&pcalib).expect("pcalib");
+    let (alpha, resp_rmse) = metrics::gamma_align(&inv, &cam.response.inverse(256));
+    assert!(resp_rmse < 0.03, "response RMSE {resp_rmse} (α {alpha})");
+    let truth: Vec<f64> = seq.exposures.iter().step_by(2).copied().collect();
+    let fit: Vec<f64> = times.iter().map(|e| e.exposure_ms).collect();
+    let exp_err = metrics::exposure_error_pct(&fit, &truth, alpha);
+    assert!(exp_err < 8.0, "exposure RMS error {exp_err} %");
+    // Out-of-range clip parameters are refused at the edge.
+    let (st, body) = s
+        .post_json(
+            "/v1/jobs",
+            &json!({"kind": "photometric_online", "dataset": ds["id"], "params": {"clip": {"max_frames": 1}}}),
+        )
+        .await;
+    assert_eq!(st, 422, "{body}");
+    assert_eq!(body["field"], "params.clip.max_frames", "{body}");
+    s.stop().await;
+}

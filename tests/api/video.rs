@@ -158,7 +158,7 @@ async fn blur_score_scores_every_frame_of_a_clip_and_picks_the_sharpest() {
     assert_eq!(body["field"], "params.select.count", "{body}");
     // A kind that does not read clips says so.
     let (st, body) = s
-        .post_json("/v1/jobs", &serde_json::json!({"kind": "camera_calibration", "dataset": ds["id"], "params": {"board": {"cols": 9, "rows": 6, "square": 0.025}}}))
+        .post_json("/v1/jobs", &serde_json::json!({"kind": "rig_calibration", "dataset": ds["id"], "params": {"board": {"cols": 9, "rows": 6, "square": 0.025}}}))
         .await;
     assert_eq!(st, 422, "{body}");
     assert_eq!(body["code"], "dataset_kind_mismatch");

@@ -25,8 +25,12 @@
 //! Files: `types` (inputs, options and the [`Calibration`] report), `solve` ([`calibrate`]:
 //! steps 2–4 and the reject-and-resolve loop), `reject` (step 5), `finish` (step 6); the
 //! building blocks are `homography`, `zhang`, `init` (starting cameras), `pnp` (poses) and
-//! `problem` (the least-squares problem); [`report`] draws coverage maps.
+//! `problem` (the least-squares problem); [`report`] draws coverage maps. `select` chooses
+//! diverse views among many candidates and `clip` (feature `video`) finds those candidates in
+//! a video clip.
 
+#[cfg(feature = "video")]
+pub mod clip;
 mod finish;
 mod homography;
 mod init;
@@ -34,6 +38,7 @@ mod pnp;
 mod problem;
 mod reject;
 pub mod report;
+mod select;
 mod solve;
 mod types;
 mod zhang;
@@ -43,6 +48,7 @@ mod tests;
 
 pub use homography::{homography, homography_dlt, refine_homography, transfer};
 pub use pnp::estimate_pose;
+pub use select::{ViewCandidate, ViewDecision, ViewSelection, select_views};
 pub use solve::calibrate;
 pub use types::{
     BoardGeometry, CalibOptions, Calibration, CornerObservation, CornerResidual,

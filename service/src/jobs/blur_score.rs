@@ -68,9 +68,7 @@ impl Kind for BlurScore {
         input: &JobInput,
         progress: &dyn Progress,
     ) -> Result<JobOutput, JobError> {
-        if let [f] = input.files.as_slice()
-            && f.media_type.starts_with("video/")
-        {
+        if super::spool::single_clip(input).is_some() {
             return score_video(&params, input, progress);
         }
         let names: Vec<String> = input.files.iter().map(|f| f.name.clone()).collect();
@@ -106,31 +104,16 @@ impl Kind for BlurScore {
 }
 
 /// A video dataset: every frame scored on its luma plane, the sharpest picked (exported as PNG
-/// artifacts), and a time-series plot. The clip is spooled to a temporary file (decoding needs
-/// to seek; blob stores stream), never held in memory.
+/// artifacts), and a time-series plot.
 fn score_video(
     params: &BlurParams,
     input: &JobInput,
     progress: &dyn Progress,
 ) -> Result<JobOutput, JobError> {
     use caliper_core::video::{FrameFormat, FrameOptions, FrameReader, VideoLimits};
-    let f = &input.files[0];
-    let storage =
-        |e: std::io::Error| JobError::Transient(format!("storage: cannot read {}: {e}", f.name));
-    let mut spool = tempfile::tempfile().map_err(storage)?;
-    let mut src = (input.open)(f).map_err(storage)?;
-    std::io::copy(&mut src, &mut spool).map_err(storage)?;
+    let mut clip = super::spool::SpooledClip::new(input, &input.files[0])?;
     let limits = VideoLimits::default();
-    let rewind = |file: &mut std::fs::File| {
-        std::io::Seek::rewind(file).map_err(storage)?;
-        file.try_clone().map_err(storage)
-    };
-    let report = caliper_core::blur::clip::score_clip(
-        std::io::BufReader::new(rewind(&mut spool)?),
-        &limits,
-        params,
-        progress,
-    )?;
+    let report = caliper_core::blur::clip::score_clip(clip.reader()?, &limits, params, progress)?;
     // The picked frames as PNG: a second pass that converts only those.
     let wanted: std::collections::BTreeSet<u64> = report
         .selected
@@ -143,12 +126,8 @@ fn score_video(
         indices: Some(wanted.clone()),
         ..FrameOptions::default()
     };
-    let mut reader = FrameReader::open(
-        std::io::BufReader::new(rewind(&mut spool)?),
-        &limits,
-        options,
-    )
-    .map_err(|e| JobError::from(caliper_core::CoreError::input(e.to_string())))?;
+    let mut reader = FrameReader::open(clip.reader()?, &limits, options)
+        .map_err(|e| JobError::from(caliper_core::CoreError::input(e.to_string())))?;
     while let Some(Ok(frame)) = reader.next_frame() {
         progress.check()?;
         if !wanted.contains(&frame.index) {

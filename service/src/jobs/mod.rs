@@ -14,6 +14,7 @@ pub mod imu;
 pub mod kind;
 pub mod photometric;
 pub mod rig_calibration;
+mod spool;
 pub mod worker;
 
 use std::sync::Arc;

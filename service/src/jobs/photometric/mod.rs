@@ -4,7 +4,7 @@
 //!   exposure times;
 //! - [`vignetting`] `vignetting`: `V(r)` from flat-field images;
 //! - [`online`] `photometric_online`: response, vignetting and per-frame exposures of an
-//!   auto-exposure image sequence;
+//!   auto-exposure image sequence or video clip ([`clip`] takes its frames);
 //! - [`correct`] `photometric_correct`: apply a fitted model to images (linear,
 //!   vignetting-free radiance).
 //!
@@ -13,6 +13,7 @@
 //! Frames are taken in natural name order (`frame2.png` before `frame10.png`): that is the
 //! order of a sequence and of the `times.txt` ids. This module holds what they share.
 
+mod clip;
 mod correct;
 mod online;
 mod response;

@@ -1,11 +1,12 @@
 //! `photometric_online`: response, vignetting and per-frame exposures of an auto-exposure
-//! image sequence (Bergmann et al. 2017).
+//! image sequence (Bergmann et al. 2017), or of a video clip ([`super::clip`]).
 
 use caliper_core::Progress;
 use caliper_core::photometric::{OnlineParams, dso, photometric_online, plot};
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
+use super::clip::{ClipFrames, clip_sequence};
 use super::{
     decode_all, response_artifacts, sorted_files, text_artifact, times_entries, vignette_artifacts,
 };
@@ -23,6 +24,8 @@ pub struct OnlineJobParams {
     pub frame_interval_s: Option<f64>,
     /// Fit options.
     pub options: OnlineParams,
+    /// For a video dataset: how many frames are fitted (timestamps come from the clip).
+    pub clip: ClipFrames,
 }
 
 /// `photometric_online`: response, vignetting and exposures of an auto-exposure sequence.
@@ -32,7 +35,8 @@ impl Kind for PhotometricOnline {
     const NAME: &'static str = "photometric_online";
     const SCHEMA: &'static str = "caliper.photometric/v1";
     const DATASET: DatasetKind = DatasetKind::Images;
-    const DESCRIPTION: &'static str = "Online photometric calibration of an auto-exposure image sequence (Bergmann et al. 2017): response, vignetting and per-frame exposures; DSO pcalib.txt, vignette.png, times.txt.";
+    const ALSO_VIDEO: bool = true;
+    const DESCRIPTION: &'static str = "Online photometric calibration of an auto-exposure image sequence or video clip (Bergmann et al. 2017): response, vignetting and per-frame exposures; DSO pcalib.txt, vignette.png, times.txt.";
     const EXPORTS: &'static [Export] = super::EXPORTS;
     type Params = OnlineJobParams;
     type Cli = JsonParams;
@@ -49,7 +53,7 @@ impl Kind for PhotometricOnline {
                 "must be finite and > 0",
             ));
         }
-        Ok(())
+        p.clip.check()
     }
 
     fn cli_params(a: &JsonParams, _: &CliContext<'_>) -> Result<Value, RunError> {
@@ -62,9 +66,20 @@ impl Kind for PhotometricOnline {
         input: &JobInput,
         progress: &dyn Progress,
     ) -> Result<JobOutput, JobError> {
+        let clip = match crate::jobs::spool::single_clip(input) {
+            Some(f) => Some(clip_sequence(input, f, &p.clip, progress)?),
+            None => None,
+        };
         let files = sorted_files(input);
-        let images = decode_all(input, &files, progress)?;
-        let r = photometric_online(&images, &p.options, progress)?;
+        let decoded;
+        let images: &[caliper_core::photometric::PhotoImage] = match &clip {
+            Some(c) => &c.images,
+            None => {
+                decoded = decode_all(input, &files, progress)?;
+                &decoded
+            }
+        };
+        let r = photometric_online(images, &p.options, progress)?;
         let quality = json!({
             "frames": images.len(),
             "tracks": r.tracks,
@@ -76,15 +91,32 @@ impl Kind for PhotometricOnline {
         if let Some(v) = &r.model.vignette {
             artifacts.extend(vignette_artifacts(v)?);
         }
-        let entries = times_entries(&files, &r.exposure_ratios, p.frame_interval_s);
+        let entries = match &clip {
+            // A clip's own times, frames named by their index in the clip.
+            Some(c) => c
+                .frames
+                .iter()
+                .zip(&r.exposure_ratios)
+                .map(|(&(index, pts_s), &e)| dso::TimeEntry {
+                    id: format!("{index:06}"),
+                    timestamp: pts_s,
+                    exposure_ms: e,
+                })
+                .collect(),
+            None => times_entries(&files, &r.exposure_ratios, p.frame_interval_s),
+        };
         artifacts.push(text_artifact("times.txt", dso::write_times(&entries)));
         let ts: Vec<f64> = entries.iter().map(|e| e.timestamp).collect();
         artifacts.push(Artifact::svg(
             "exposures.svg",
             plot::exposure_svg(&r.exposure_ratios, Some(&ts), None),
         ));
+        let mut parameters = to_value(&r)?;
+        if let Some(c) = clip {
+            parameters["clip"] = c.summary;
+        }
         Ok(JobOutput {
-            parameters: to_value(&r)?,
+            parameters,
             quality,
             artifacts,
         })

@@ -1,5 +1,8 @@
 //! `camera_calibration`: chessboard images → intrinsics and distortion with diagnostics.
 //!
+//! A video dataset (one clip) goes through [`clip`]: the views are chosen among its frames,
+//! then solved the same way.
+//!
 //! Per image: decode, score blur (Laplacian variance, the foundation's measure), detect the
 //! board. Then one joint solve over every usable view (`caliper_core::calib`), coverage of the
 //! image by the observed corners, and three SVG artifacts. Frames much blurrier than the set
@@ -24,6 +27,9 @@ use super::{
     Artifact, CliContext, Export, JobError, JobInput, JobOutput, Kind, ParamError, RunError,
 };
 use crate::store::DatasetKind;
+
+mod clip;
+pub use clip::ClipParams;
 
 /// Unit of `board.square`; recorded in the document so extrinsics can be read in metres.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
@@ -100,6 +106,9 @@ pub struct CameraCalibParams {
     /// Treatment of blurred frames.
     #[serde(default)]
     pub blur: BlurPolicy,
+    /// For a video dataset: how many frames are searched and how views are chosen.
+    #[serde(default)]
+    pub clip: ClipParams,
 }
 
 /// What happened to one image.
@@ -149,7 +158,8 @@ impl Kind for CameraCalibration {
     const NAME: &'static str = "camera_calibration";
     const SCHEMA: &'static str = "caliper.camera/v1";
     const DATASET: DatasetKind = DatasetKind::Images;
-    const DESCRIPTION: &'static str = "Calibrate a camera (pinhole + Brown-Conrady, Kannala-Brandt fisheye, double sphere) from chessboard images, with per-parameter uncertainty, coverage and residual diagnostics.";
+    const ALSO_VIDEO: bool = true;
+    const DESCRIPTION: &'static str = "Calibrate a camera (pinhole + Brown-Conrady, Kannala-Brandt fisheye, double sphere) from target images or a video clip, with per-parameter uncertainty, coverage and residual diagnostics.";
     const EXPORTS: &'static [Export] = crate::exports::CAMERA_EXPORTS;
     type Params = CameraCalibParams;
     type Cli = CameraCalibrationArgs;
@@ -167,7 +177,7 @@ impl Kind for CameraCalibration {
                 "must be in [0, 1)",
             ));
         }
-        Ok(())
+        p.clip.check(p)
     }
 
     fn cli_params(a: &CameraCalibrationArgs, _: &CliContext<'_>) -> Result<Value, RunError> {
@@ -190,6 +200,9 @@ impl Kind for CameraCalibration {
         input: &JobInput,
         progress: &dyn Progress,
     ) -> Result<JobOutput, JobError> {
+        if let Some(f) = super::spool::single_clip(input) {
+            return clip::run_clip(&p, input, f, progress);
+        }
         let board = target_of(&p);
         let limits = ImageLimits::default();
         let total = input.files.len() as u64;
@@ -265,42 +278,76 @@ impl Kind for CameraCalibration {
                 corners: i.points.clone(),
             })
             .collect();
-        progress.report("solving", 0, 1);
-        let calib = calibrate(&observations, &board, p.model, (w, h), &p.options, progress)?;
-        progress.report("solving", 1, 1);
-        let cov = coverage(&observations, &calib, 16, 12);
-        let artifacts = vec![
-            Artifact::svg("residuals.svg", residuals_svg(&observations, &calib)),
-            Artifact::svg("view_rms.svg", view_rms_svg(&calib)),
-            Artifact::svg("coverage.svg", coverage_svg(&cov, calib.image_size)),
-        ];
         let detected = images.iter().filter(|i| i.detected).count();
-        let quality = json!({
-            "rms": calib.rms,
-            "rms_all": calib.rms_all,
-            "sigma": calib.sigma,
-            "images": images.len(),
-            "boards_detected": detected,
-            "views_used": calib.views.iter().filter(|v| v.used).count(),
-            "coverage": cov.fraction,
-            "projection_uncertainty_px": calib.projection_uncertainty.iter().map(|u| u.std_major).fold(0.0f64, f64::max),
-        });
-        let parameters = json!({
-            "camera": calib.camera,
-            "image_size": calib.image_size,
-            "board": p.board,
-            "target": board,
-            "calibration": calib,
-            "coverage": cov,
-            "images": images,
-            "observations": observations,
-        });
-        Ok(JobOutput {
-            parameters,
-            quality,
-            artifacts,
-        })
+        let evidence = Evidence {
+            looked_at: images.len(),
+            detected,
+            images: json!(images),
+            clip: None,
+        };
+        solve_and_document(&p, &board, &observations, (w, h), evidence, progress)
     }
+}
+
+/// What the views came from, for the document.
+pub(super) struct Evidence {
+    /// Images (or searched frames) looked at.
+    pub looked_at: usize,
+    /// Of those, with a board.
+    pub detected: usize,
+    /// Per image (or frame): what happened to it.
+    pub images: Value,
+    /// For a clip: the clip, its frames and the selection.
+    pub clip: Option<Value>,
+}
+
+/// The solve, the diagnostics and the document: the same for stills and clips.
+pub(super) fn solve_and_document(
+    p: &CameraCalibParams,
+    board: &TargetSpec,
+    observations: &[ViewObservations],
+    (w, h): (u32, u32),
+    evidence: Evidence,
+    progress: &dyn Progress,
+) -> Result<JobOutput, JobError> {
+    progress.report("solving", 0, 1);
+    let calib = calibrate(observations, board, p.model, (w, h), &p.options, progress)?;
+    progress.report("solving", 1, 1);
+    let cov = coverage(observations, &calib, 16, 12);
+    let artifacts = vec![
+        Artifact::svg("residuals.svg", residuals_svg(observations, &calib)),
+        Artifact::svg("view_rms.svg", view_rms_svg(&calib)),
+        Artifact::svg("coverage.svg", coverage_svg(&cov, calib.image_size)),
+    ];
+    let mut quality = json!({
+        "rms": calib.rms,
+        "rms_all": calib.rms_all,
+        "sigma": calib.sigma,
+        "images": evidence.looked_at,
+        "boards_detected": evidence.detected,
+        "views_used": calib.views.iter().filter(|v| v.used).count(),
+        "coverage": cov.fraction,
+        "projection_uncertainty_px": calib.projection_uncertainty.iter().map(|u| u.std_major).fold(0.0f64, f64::max),
+    });
+    let mut parameters = json!({
+        "camera": calib.camera,
+        "image_size": calib.image_size,
+        "board": p.board,
+        "target": board,
+        "calibration": calib,
+        "coverage": cov,
+        "images": evidence.images,
+        "observations": observations,
+    });
+    if let Some(clip) = evidence.clip {
+        quality["frames_decoded"] = clip["frames_decoded"].clone();
+        parameters["clip"] = clip;
+    }
+    Ok(JobOutput {
+        parameters,
+        quality,
+        artifacts,
+    })
 }
 
 /// The target of the parameters (`board` is a chessboard target).

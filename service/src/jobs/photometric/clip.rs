@@ -1,0 +1,129 @@
+//! The frames of a clip for `photometric_online`: decoded on the luma plane (the response is
+//! fitted on what the camera wrote, so no colour conversion is added), spread evenly over the
+//! clip, with their presentation times for `times.txt`.
+//!
+//! The fit holds every frame in memory, so a clip is thinned to at most `max_frames` frames and
+//! to [`PIXEL_BUDGET`] pixels in all (a 1080p clip keeps about 30 frames, a 640×480 one 200):
+//! the document says which frames were used. Thinning keeps every `stride`-th frame; the
+//! tracker needs overlap between consecutive kept frames, so slow camera motion suits it.
+
+use caliper_core::Progress;
+use caliper_core::io::Gray;
+use caliper_core::photometric::PhotoImage;
+use caliper_core::video::{FrameFormat, FrameOptions, FrameReader, VideoError, VideoLimits};
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
+
+use crate::jobs::spool::SpooledClip;
+use crate::jobs::{JobError, JobInput, ParamError};
+use crate::store::DatasetFile;
+
+/// Pixels of all kept frames together (about 130 MB as 16-bit samples).
+pub const PIXEL_BUDGET: u64 = 64_000_000;
+
+/// How a clip's frames are taken (video datasets only).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct ClipFrames {
+    /// Most frames fitted (default 200), spread evenly over the clip.
+    pub max_frames: usize,
+}
+
+impl Default for ClipFrames {
+    fn default() -> Self {
+        Self { max_frames: 200 }
+    }
+}
+
+impl ClipFrames {
+    pub(super) fn check(&self) -> Result<(), ParamError> {
+        if !(3..=5000).contains(&self.max_frames) {
+            return Err(ParamError::new("clip.max_frames", "must be in [3, 5000]"));
+        }
+        Ok(())
+    }
+}
+
+/// The kept frames, `(index, pts_s)` of each, and the `clip` section of the document.
+pub(super) struct ClipSequence {
+    pub images: Vec<PhotoImage>,
+    pub frames: Vec<(u64, f64)>,
+    pub summary: Value,
+}
+
+fn video_error(e: VideoError) -> JobError {
+    match e {
+        VideoError::Canceled => JobError::Canceled,
+        other => JobError::from(caliper_core::CoreError::input(other.to_string())),
+    }
+}
+
+/// Decodes the kept frames of the clip `f`.
+pub(super) fn clip_sequence(
+    input: &JobInput,
+    f: &DatasetFile,
+    params: &ClipFrames,
+    progress: &dyn Progress,
+) -> Result<ClipSequence, JobError> {
+    let mut clip = SpooledClip::new(input, f)?;
+    let limits = VideoLimits::default();
+    let info = caliper_core::video::probe(clip.reader()?, &limits).map_err(video_error)?;
+    let pixels = u64::from(info.width) * u64::from(info.height);
+    let by_budget = (PIXEL_BUDGET / pixels.max(1)).max(3);
+    let keep = (params.max_frames as u64).min(by_budget).max(1);
+    let stride = info.frame_count.div_ceil(keep).max(1);
+    let options = FrameOptions {
+        format: FrameFormat::Luma,
+        stride,
+        ..FrameOptions::default()
+    };
+    let mut reader = FrameReader::open(clip.reader()?, &limits, options).map_err(video_error)?;
+    let (mut images, mut frames, mut issues) = (Vec::new(), Vec::new(), Vec::new());
+    while let Some(next) = reader.next_frame() {
+        progress.check()?;
+        let frame = match next {
+            Ok(fr) => fr,
+            Err(VideoError::Canceled) => return Err(JobError::Canceled),
+            Err(e) => {
+                issues.push(e.to_string());
+                break;
+            }
+        };
+        let g = frame.image.into_luma();
+        let (width, height) = g.dimensions();
+        images.push(PhotoImage::from_gray(&Gray {
+            width,
+            height,
+            data: g.into_raw(),
+        }));
+        frames.push((frame.index, frame.pts_s));
+        progress.report("decode", frames.len() as u64, keep);
+    }
+    issues.extend(reader.issues().iter().map(|i| i.message.clone()));
+    if images.len() < 3 {
+        return Err(JobError::Permanent {
+            code: "invalid_input",
+            message: format!(
+                "{} frames of the clip could be decoded; the fit needs at least 3{}",
+                images.len(),
+                issues
+                    .first()
+                    .map(|i| format!(" ({i})"))
+                    .unwrap_or_default()
+            ),
+        });
+    }
+    let summary = json!({
+        "video": info,
+        "stride": stride,
+        "frames_used": frames.len(),
+        "limited_by": if by_budget < params.max_frames as u64 { "pixel_budget" } else { "max_frames" },
+        "frames": frames.iter().map(|(i, t)| json!({"index": i, "pts_s": t})).collect::<Vec<_>>(),
+        "issues": issues,
+    });
+    Ok(ClipSequence {
+        images,
+        frames,
+        summary,
+    })
+}
