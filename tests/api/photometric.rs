@@ -302,9 +302,10 @@ async fn photometric_online_fits_an_auto_exposure_clip() {
     let s = start().await;
     let (st, ds, _) = s.upload(vec![("ae.mp4", mp4)]).await;
     assert_eq!(st, 201, "{ds}");
-    // Every second frame (max_frames 40 of 80).
+    // Every second frame (max_frames 40 of 80); Caliper's encoder stores grey levels as
+    // full-range luma.
     let id = s
-        .job(json!({"kind": "photometric_online", "dataset": ds["id"], "params": {"clip": {"max_frames": 40}}}))
+        .job(json!({"kind": "photometric_online", "dataset": ds["id"], "params": {"clip": {"max_frames": 40, "luma_range": "full"}}}))
         .await;
     let done = s.wait_terminal(&id).await;
     assert_eq!(done["status"], "succeeded", "{done}");

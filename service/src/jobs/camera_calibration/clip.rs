@@ -31,7 +31,7 @@ pub struct ClipParams {
     /// coverage.
     pub max_views: usize,
     /// Views whose board outline differs by less than this share of the image diagonal from a
-    /// chosen view are near-duplicates (default 0.03).
+    /// chosen view are near-duplicates (default 0.02).
     pub min_difference: f64,
 }
 

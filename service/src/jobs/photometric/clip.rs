@@ -1,6 +1,7 @@
 //! The frames of a clip for `photometric_online`: decoded on the luma plane (the response is
-//! fitted on what the camera wrote, so no colour conversion is added), spread evenly over the
-//! clip, with their presentation times for `times.txt`.
+//! fitted on what the camera wrote, so no colour conversion is added; limited-range samples
+//! are expanded to full range as a player would show them), spread evenly over the clip, with
+//! their presentation times for `times.txt`.
 //!
 //! The fit holds every frame in memory, so a clip is thinned to at most `max_frames` frames and
 //! to [`PIXEL_BUDGET`] pixels in all (a 1080p clip keeps about 30 frames, a 640×480 one 200):
@@ -21,17 +22,62 @@ use crate::store::DatasetFile;
 /// Pixels of all kept frames together (about 130 MB as 16-bit samples).
 pub const PIXEL_BUDGET: u64 = 64_000_000;
 
+/// The range of the coded luma samples.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum LumaRange {
+    /// Black at 16, white at 235 (ITU-R BT.601/709 "video" range: the H.264 default and what
+    /// cameras and ffmpeg write unless told otherwise).
+    #[default]
+    Limited,
+    /// Black at 0, white at 255 (JPEG range, e.g. some phone and screen recordings).
+    Full,
+}
+
 /// How a clip's frames are taken (video datasets only).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ClipFrames {
     /// Most frames fitted (default 200), spread evenly over the clip.
     pub max_frames: usize,
+    /// Range of the coded luma (default `limited`): limited-range samples are expanded to
+    /// full range (as a player shows them) before the fit, so that the response starts at
+    /// black; they are kept at 16 bits so that no level is lost to rounding.
+    pub luma_range: LumaRange,
 }
 
 impl Default for ClipFrames {
     fn default() -> Self {
-        Self { max_frames: 200 }
+        Self {
+            max_frames: 200,
+            luma_range: LumaRange::Limited,
+        }
+    }
+}
+
+/// A decoded luma plane as the fit's image: limited range expanded to 16-bit full range.
+fn photo_image(width: u32, height: u32, luma: Vec<u8>, range: LumaRange) -> PhotoImage {
+    match range {
+        LumaRange::Full => PhotoImage::from_gray(&Gray {
+            width,
+            height,
+            data: luma,
+        }),
+        LumaRange::Limited => {
+            let data: Vec<u16> = luma
+                .iter()
+                .map(|&y| {
+                    let v = (f64::from(y) - 16.0) * (65535.0 / 219.0);
+                    v.round().clamp(0.0, 65535.0) as u16
+                })
+                .collect();
+            PhotoImage {
+                width: width as usize,
+                height: height as usize,
+                max_level: 65535,
+                data,
+            }
+        }
     }
 }
 
@@ -91,11 +137,7 @@ pub(super) fn clip_sequence(
         };
         let g = frame.image.into_luma();
         let (width, height) = g.dimensions();
-        images.push(PhotoImage::from_gray(&Gray {
-            width,
-            height,
-            data: g.into_raw(),
-        }));
+        images.push(photo_image(width, height, g.into_raw(), params.luma_range));
         frames.push((frame.index, frame.pts_s));
         progress.report("decode", frames.len() as u64, keep);
     }
