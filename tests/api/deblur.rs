@@ -371,3 +371,85 @@ fn offline_gyro_deblur_reads_an_imu_log() {
         "{err}"
     );
 }
+
+/// A clip whose frames are one scene, blurred by a known kernel in every frame: the frames
+/// chosen by time come back sharper, as `frame_NNNNNN.png` with their kernels; a clip without
+/// a frame choice, a frame choice on images and too many frames are refused by name.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn deblur_restores_chosen_frames_of_a_clip() {
+    let (w, h) = (96usize, 80usize);
+    let psf = Psf::motion(9.0, 0.0).expect("psf");
+    let sharp = sharp_rgb(w as u32, h as u32);
+    let grey = |img: &[[f64; 3]]| -> image::GrayImage {
+        image::GrayImage::from_fn(w as u32, h as u32, |x, y| {
+            let p = img[y as usize * w + x as usize];
+            image::Luma([(p[0].clamp(0.0, 1.0) * 255.0).round() as u8])
+        })
+    };
+    let blurred = grey(&blur(&sharp, w, h, &psf));
+    let frames = vec![blurred.clone(); 12];
+    let mp4 = caliper_core::video::encode_h264_mp4(&frames, 10.0).expect("encode");
+    let s = start().await;
+    let ds = s.dataset(vec![("shake.mp4", mp4)]).await;
+    let id = s
+        .job(json!({"kind": "deblur", "dataset": ds,
+            "params": {"method": "tv", "psf": psf, "frames": {"times": [0.0, 0.5]}}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    let restored = doc["parameters"]["images"].as_array().expect("images");
+    let indices: Vec<u64> = restored
+        .iter()
+        .filter_map(|i| i["index"].as_u64())
+        .collect();
+    assert_eq!(indices, vec![0, 5], "{doc}");
+    let r = reqwest::get(s.url(&format!("/v1/jobs/{id}/artifacts/frame_000005.png")))
+        .await
+        .expect("get");
+    assert_eq!(r.status(), 200);
+    let out = image::load_from_memory(&r.bytes().await.expect("bytes"))
+        .expect("png")
+        .to_luma8();
+    let truth = grey(&sharp);
+    let as_rgb = |g: &image::GrayImage| -> Vec<[f64; 3]> {
+        g.pixels().map(|p| [f64::from(p[0]) / 255.0; 3]).collect()
+    };
+    let before = psnr(&as_rgb(&blurred), &as_rgb(&truth), w, h, 12);
+    let after = psnr(&as_rgb(&out), &as_rgb(&truth), w, h, 12);
+    assert!(after > before + 3.0, "PSNR {before:.1} → {after:.1} dB");
+    let k = reqwest::get(s.url(&format!("/v1/jobs/{id}/artifacts/frame_000005.kernel.json")))
+        .await
+        .expect("get");
+    assert_eq!(k.status(), 200);
+
+    // A clip needs a frame choice; images refuse one; too many frames are refused.
+    for (params, dataset, needle) in [
+        (
+            json!({"method": "tv", "psf": psf}),
+            ds.clone(),
+            "params.frames",
+        ),
+        (
+            json!({"method": "tv", "psf": psf, "frames": {"every": 1}}),
+            s.dataset(vec![("a.png", png(&truth))]).await,
+            "video datasets",
+        ),
+    ] {
+        let id = s
+            .job(json!({"kind": "deblur", "dataset": dataset, "params": params}))
+            .await;
+        let done = s.wait_terminal(&id).await;
+        assert_eq!(done["status"], "failed", "{done}");
+        assert!(done["error"].to_string().contains(needle), "{done}");
+    }
+    let (st, body) = s
+        .post_json(
+            "/v1/jobs",
+            &json!({"kind": "deblur", "dataset": ds, "params": {"method": "tv", "psf": psf, "frames": {"every": 0}}}),
+        )
+        .await;
+    assert_eq!(st, 422, "{body}");
+    assert_eq!(body["field"], "params.frames.every", "{body}");
+    s.stop().await;
+}

@@ -61,6 +61,8 @@ pub struct DeblurParams {
     /// wide lenses). Default: one kernel, drawn at the principal point. The cells must be small
     /// enough for the kernel to be nearly constant over each; 1–32 per axis.
     pub gyro_grid: Option<[usize; 2]>,
+    /// For a video dataset: which frames to restore (required there, refused for images).
+    pub frames: Option<super::FramePick>,
 }
 
 impl Default for DeblurParams {
@@ -74,6 +76,7 @@ impl Default for DeblurParams {
             kernel_size: None,
             gyro: None,
             gyro_grid: None,
+            frames: None,
         }
     }
 }
@@ -126,6 +129,15 @@ impl DeblurParams {
                 other => other,
             })?,
             (None, false) => {}
+        }
+        if let Some(f) = &self.frames {
+            f.validate()?;
+            if self.method == Gyro {
+                return Err(CoreError::param(
+                    "frames",
+                    "gyro deblurring of clip frames is not supported (a trace covers one exposure)",
+                ));
+            }
         }
         if let Some([nx, ny]) = self.gyro_grid {
             if self.method != Gyro {

@@ -44,6 +44,8 @@ pub struct ClipFrames {
     /// full range (as a player shows them) before the fit, so that the response starts at
     /// black; they are kept at 16 bits so that no level is lost to rounding.
     pub luma_range: LumaRange,
+    /// Only frames presented within `[start, end]` seconds (default: the whole clip).
+    pub time_range: Option<[f64; 2]>,
 }
 
 impl Default for ClipFrames {
@@ -51,6 +53,7 @@ impl Default for ClipFrames {
         Self {
             max_frames: 200,
             luma_range: LumaRange::Limited,
+            time_range: None,
         }
     }
 }
@@ -86,6 +89,14 @@ impl ClipFrames {
         if !(3..=5000).contains(&self.max_frames) {
             return Err(ParamError::new("clip.max_frames", "must be in [3, 5000]"));
         }
+        if let Some([a, b]) = self.time_range
+            && !(a.is_finite() && b.is_finite() && a >= 0.0 && a < b)
+        {
+            return Err(ParamError::new(
+                "clip.time_range",
+                "must be [start, end] seconds with 0 ≤ start < end",
+            ));
+        }
         Ok(())
     }
 }
@@ -117,10 +128,19 @@ pub(super) fn clip_sequence(
     let pixels = u64::from(info.width) * u64::from(info.height);
     let by_budget = (PIXEL_BUDGET / pixels.max(1)).max(3);
     let keep = (params.max_frames as u64).min(by_budget).max(1);
-    let stride = info.frame_count.div_ceil(keep).max(1);
+    // Frames in the asked time range, from the clip's mean rate.
+    let in_range = match params.time_range {
+        Some([a, b]) => {
+            let span = (b.min(info.duration_s) - a).max(0.0);
+            ((span * info.fps).ceil() as u64).clamp(1, info.frame_count.max(1))
+        }
+        None => info.frame_count,
+    };
+    let stride = in_range.div_ceil(keep).max(1);
     let options = FrameOptions {
         format: FrameFormat::Luma,
         stride,
+        time_range: params.time_range.map(|[a, b]| (a, b)),
         ..FrameOptions::default()
     };
     let mut reader = FrameReader::open(clip.reader()?, &limits, options).map_err(video_error)?;

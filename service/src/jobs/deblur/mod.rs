@@ -4,7 +4,8 @@
 //! Artifacts per input `NAME.EXT`: `NAME.EXT` (the deblurred image, same format and bit depth
 //! as the input), `NAME.kernel.png` (the kernel, scaled to its peak) and `NAME.kernel.json`
 //! (the exact weights), and `NAME.preview.png` (blurred | deblurred side by side, 8-bit,
-//! at most 1024 px wide) for dashboards.
+//! at most 1024 px wide) for dashboards. A clip's chosen frames come out the same way, named
+//! `frame_NNNNNN.png` ([`clip`]).
 
 use std::io::Cursor;
 
@@ -22,7 +23,9 @@ use super::{
     Artifact, CliContext, JobError, JobInput, JobOutput, Kind, ParamError, RunError, base_name,
     stem,
 };
-use crate::store::{DatasetFile, DatasetKind};
+use crate::store::DatasetKind;
+
+mod clip;
 
 /// Widest before/after preview, px.
 const PREVIEW_WIDTH: u32 = 1024;
@@ -97,7 +100,8 @@ impl Kind for Deblur {
     const NAME: &'static str = "deblur";
     const SCHEMA: &'static str = "caliper.deblur/v1";
     const DATASET: DatasetKind = DatasetKind::Images;
-    const DESCRIPTION: &'static str = "Deblur images: Wiener, Richardson-Lucy or TV with a known kernel, blind kernel estimation (L0 prior, coarse to fine), or a kernel drawn from a gyro trace; same format and bit depth out, with the kernel.";
+    const ALSO_VIDEO: bool = true;
+    const DESCRIPTION: &'static str = "Deblur images or chosen frames of a clip: Wiener, Richardson-Lucy or TV with a known kernel, blind kernel estimation (L0 prior, coarse to fine), or a kernel drawn from a gyro trace; same format and bit depth out, with the kernel.";
     type Params = DeblurParams;
     type Cli = DeblurArgs;
 
@@ -123,6 +127,23 @@ impl Kind for Deblur {
         input: &JobInput,
         progress: &dyn Progress,
     ) -> Result<JobOutput, JobError> {
+        let clip = super::spool::single_clip(input);
+        match (clip, &p.frames) {
+            (Some(f), Some(pick)) => return clip::deblur_clip(&p, pick, input, f, progress),
+            (Some(_), None) => {
+                return Err(permanent(
+                    "a video dataset needs params.frames: {\"every\": N}, {\"times\": [s, …]} \
+                     or \"blurred\""
+                        .into(),
+                ));
+            }
+            (None, Some(_)) => {
+                return Err(permanent(
+                    "params.frames is for video datasets; this one holds images".into(),
+                ));
+            }
+            (None, None) => {}
+        }
         let mut artifacts = Vec::new();
         let mut images = Vec::new();
         let total = input.files.len() as u64;
@@ -131,7 +152,21 @@ impl Kind for Deblur {
             progress.check()?;
             progress.report("deblur", i as u64, total);
             let out_name = unique_name(base_name(&f.name), &mut seen);
-            images.push(self.one(input, f, &p, &out_name, &mut artifacts, progress)?);
+            let bytes = (input.load)(f).map_err(|e| {
+                JobError::Transient(format!("storage: cannot read {}: {e}", f.name))
+            })?;
+            let (img, format) = decode_keep_format(&bytes, &f.name)?;
+            let mut entry = restore(
+                &img,
+                format,
+                &f.name,
+                &p,
+                &out_name,
+                &mut artifacts,
+                progress,
+            )?;
+            entry["file"] = json!(f.name);
+            images.push(entry);
         }
         progress.report("deblur", total, total);
         let quality = json!({"images": images.len(), "method": p.method});
@@ -143,60 +178,55 @@ impl Kind for Deblur {
     }
 }
 
-impl Deblur {
-    /// Deblur one file, pushing its artifacts; returns its entry in the document.
-    fn one(
-        &self,
-        input: &JobInput,
-        f: &DatasetFile,
-        p: &DeblurParams,
-        out_name: &str,
-        artifacts: &mut Vec<Artifact>,
-        progress: &dyn Progress,
-    ) -> Result<Value, JobError> {
-        let bytes = (input.load)(f)
-            .map_err(|e| JobError::Transient(format!("storage: cannot read {}: {e}", f.name)))?;
-        let (img, format) = decode_keep_format(&bytes, &f.name)?;
-        let out = deblur_image(&img, p, progress).map_err(|e| match e {
-            caliper_core::CoreError::InvalidInput(m) => permanent(format!("{}: {m}", f.name)),
-            other => other.into(),
-        })?;
-        let (data, media) = encode(&out.image, format)?;
-        artifacts.push(Artifact {
-            name: out_name.to_string(),
-            media_type: media.into(),
-            data: data.into(),
-        });
-        let s = stem(out_name);
-        artifacts.push(Artifact {
-            name: format!("{s}.kernel.png"),
-            media_type: "image/png".into(),
-            data: psf_png(&out.psf)?.into(),
-        });
-        artifacts.push(Artifact {
-            name: format!("{s}.kernel.json"),
-            media_type: "application/json".into(),
-            data: out.psf.to_json().to_string().into_bytes().into(),
-        });
-        artifacts.push(Artifact {
-            name: format!("{s}.preview.png"),
-            media_type: "image/png".into(),
-            data: preview(&img, &out.image)?.into(),
-        });
-        Ok(json!({
-            "file": f.name,
-            "artifact": out_name,
-            "width": img.width(),
-            "height": img.height(),
-            "color": format!("{:?}", img.color()),
-            "kernel": {
-                "width": out.psf.width,
-                "height": out.psf.height,
-                "artifact_png": format!("{s}.kernel.png"),
-                "artifact_json": format!("{s}.kernel.json"),
-            },
-        }))
-    }
+/// Deblurs one picture, pushing its artifacts (`out_name`, kernel PNG and JSON, preview);
+/// returns its entry in the document. `label` names it in errors.
+pub(crate) fn restore(
+    img: &DynamicImage,
+    format: ImageFormat,
+    label: &str,
+    p: &DeblurParams,
+    out_name: &str,
+    artifacts: &mut Vec<Artifact>,
+    progress: &dyn Progress,
+) -> Result<Value, JobError> {
+    let out = deblur_image(img, p, progress).map_err(|e| match e {
+        caliper_core::CoreError::InvalidInput(m) => permanent(format!("{label}: {m}")),
+        other => other.into(),
+    })?;
+    let (data, media) = encode(&out.image, format)?;
+    artifacts.push(Artifact {
+        name: out_name.to_string(),
+        media_type: media.into(),
+        data: data.into(),
+    });
+    let s = stem(out_name);
+    artifacts.push(Artifact {
+        name: format!("{s}.kernel.png"),
+        media_type: "image/png".into(),
+        data: psf_png(&out.psf)?.into(),
+    });
+    artifacts.push(Artifact {
+        name: format!("{s}.kernel.json"),
+        media_type: "application/json".into(),
+        data: out.psf.to_json().to_string().into_bytes().into(),
+    });
+    artifacts.push(Artifact {
+        name: format!("{s}.preview.png"),
+        media_type: "image/png".into(),
+        data: preview(img, &out.image)?.into(),
+    });
+    Ok(json!({
+        "artifact": out_name,
+        "width": img.width(),
+        "height": img.height(),
+        "color": format!("{:?}", img.color()),
+        "kernel": {
+            "width": out.psf.width,
+            "height": out.psf.height,
+            "artifact_png": format!("{s}.kernel.png"),
+            "artifact_json": format!("{s}.kernel.json"),
+        },
+    }))
 }
 
 /// Archive entries may share a base name (`a/x.png`, `b/x.png`): number the later ones.
