@@ -102,7 +102,8 @@ impl Scene {
         let c = self.principal();
         let (xd, yd) = ((p[0] - c[0]) / self.f, (p[1] - c[1]) / self.f);
         let (mut x, mut y) = (xd, yd);
-        for _ in 0..20 {
+        let rounds = if self.k1 == 0.0 { 0 } else { 20 };
+        for _ in 0..rounds {
             let s = 1.0 + self.k1 * (x * x + y * y);
             x = xd / s;
             y = yd / s;

@@ -385,12 +385,7 @@ fn clutter_light_and_partial_views() {
         diameter: 0.018,
         asymmetric: false,
     };
-    let view = render(
-        &spec,
-        &Scene {
-            ..tilted(&spec, 0.0, 0.42)
-        },
-    );
+    let view = render(&spec, &tilted(&spec, 0.0, 0.42));
     let det = detect_target(&view.image, &other, &TargetOptions::default());
     assert!(det.corners.is_empty(), "found a 6×6 in a 7×6");
 }

@@ -93,7 +93,7 @@ impl Moments {
         };
         let (a, bb) = b.axes();
         let fill = n / (std::f64::consts::PI * a * bb);
-        (bb > 0.0 && bb / a >= MIN_AXIS_RATIO && fill >= FILL.0 && fill <= FILL.1).then_some(b)
+        (bb > 0.0 && bb / a >= MIN_AXIS_RATIO && (FILL.0..=FILL.1).contains(&fill)).then_some(b)
     }
 }
 
@@ -117,8 +117,8 @@ fn components(img: &Gray, t: u8) -> Option<Vec<Blob>> {
     let mut seen = vec![false; w * h];
     let mut out = Vec::new();
     let mut stack = Vec::new();
-    for start in 0..w * h {
-        if img.data[start] >= t || seen[start] {
+    for (start, &v) in img.data.iter().enumerate() {
+        if v >= t || seen[start] {
             continue;
         }
         seen[start] = true;

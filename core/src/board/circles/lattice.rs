@@ -221,7 +221,7 @@ fn fit(mapped: &[([i64; 2], usize)], grid: &CircleGrid) -> Option<Vec<usize>> {
     let mut ids = vec![usize::MAX; grid.len()];
     for &(p, k) in mapped {
         let (x, y) = (p[0] - x0, p[1] - y0);
-        if y < 0 || y >= grid.rows as i64 {
+        if !(0..grid.rows as i64).contains(&y) {
             return None;
         }
         let r = y as usize;
