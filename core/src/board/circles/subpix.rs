@@ -52,7 +52,7 @@ pub(super) fn refine(img: &ImageF, blob: &Blob, outer: f64) -> Option<Refined> {
     let outer = window + ring;
     let mut c = blob.c;
     let mut contrast = 0.0;
-    let [cxx, cxy, cyy] = blob.cov.map(|v| 4.0 * v);
+    let [cxx, _, cyy] = blob.cov.map(|v| 4.0 * v);
     // Half-extents of the outer ellipse's bounding box.
     let (ex, ey) = (outer * cxx.sqrt() + 1.0, outer * cyy.sqrt() + 1.0);
     let mean_r = {
