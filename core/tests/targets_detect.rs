@@ -50,7 +50,7 @@ fn extent(spec: &TargetSpec) -> [f64; 2] {
                 *tag_rows as f64 * pitch - tag_spacing * tag_size,
             ]
         }
-        TargetSpec::Chessboard { .. } => [0.0, 0.0],
+        TargetSpec::Chessboard { .. } | TargetSpec::Circles { .. } => [0.0, 0.0],
     }
 }
 
@@ -136,7 +136,7 @@ fn expected(spec: &TargetSpec, scene: &Scene, view: &View) -> Vec<usize> {
             }
             ids.sort_unstable();
         }
-        TargetSpec::Chessboard { .. } => {}
+        TargetSpec::Chessboard { .. } | TargetSpec::Circles { .. } => {}
     }
     ids
 }

@@ -6,6 +6,8 @@
 //! - [`chessboard`]: plain chessboards (inner corners, OpenCV's order), [`detect_chessboard`].
 //! - [`charuco`]: OpenCV ChArUco boards (chessboard corners identified by ArUco markers).
 //! - [`aprilgrid`]: Kalibr AprilGrids (the corners of AprilTag 36h11 tags).
+//! - [`circles`]: OpenCV circle grids, symmetric and asymmetric, centres corrected for
+//!   perspective.
 //! - [`markers`]: the marker dictionaries and the square-marker detector the two share.
 //! - [`target`]: one description of any of them ([`TargetSpec`]: JSON, Kalibr yaml, OpenCV
 //!   ChArUco parameters) and one detector ([`detect_target`]) returning corners with ids, so
@@ -21,6 +23,7 @@
 pub mod aprilgrid;
 pub mod charuco;
 pub mod chessboard;
+pub mod circles;
 pub(crate) mod filter;
 pub mod markers;
 pub mod target;

@@ -1,7 +1,7 @@
 //! Calibration targets described once, the same way for every job, and detected with one call.
 //!
-//! [`TargetSpec`] is the JSON description (`{"type": "chessboard" | "charuco" | "aprilgrid",
-//! …}`), also read from Kalibr's target yaml ([`TargetSpec::from_kalibr_yaml`]) and from
+//! [`TargetSpec`] is the JSON description (`{"type": "chessboard" | "charuco" | "aprilgrid" |
+//! "circles", …}`), also read from Kalibr's target yaml ([`TargetSpec::from_kalibr_yaml`]) and from
 //! OpenCV's ChArUco parameters ([`TargetSpec::from_opencv_charuco`]). It knows every corner's
 //! id and board position ([`TargetSpec::object_point`]), so that a partial view (ChArUco,
 //! AprilGrid) calibrates like a full one. [`detect_target`] finds the corners of any target
@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 use super::aprilgrid::{AprilGrid, aprilgrid_corners};
 use super::charuco::{CharucoBoard, charuco_corners};
 use super::chessboard::{DetectOptions, detect_chessboard};
+use super::circles::{CircleGrid, CirclesDetection, detect_circles};
 use super::filter::gaussian_blur_gray;
 use super::markers::{Dictionary, detect_markers};
 use crate::calib::{CornerObservation, ViewObservations};
@@ -65,6 +66,24 @@ pub enum TargetSpec {
         #[serde(default = "tag36h11")]
         tag_family: String,
     },
+    /// An OpenCV circle grid of dark circles on a light card (see [`crate::board::circles`]):
+    /// `cols × rows` circles as OpenCV's `patternSize`, row-major ids `r·cols + c`, circle
+    /// `(c, r)` at `(c, r)·spacing`, or `(2c + r mod 2, r)·spacing` in an asymmetric grid.
+    /// Centres are corrected for perspective.
+    Circles {
+        /// Circles per row (OpenCV `patternSize.width`).
+        cols: usize,
+        /// Rows of circles (OpenCV `patternSize.height`).
+        rows: usize,
+        /// Centre distance between neighbouring rows (and columns of a symmetric grid; the
+        /// circles of one row of an asymmetric grid are `2·spacing` apart).
+        spacing: f64,
+        /// Circle diameter, smaller than the nearest-centre distance.
+        diameter: f64,
+        /// OpenCV's `CALIB_CB_ASYMMETRIC_GRID`: odd rows shifted by `spacing`.
+        #[serde(default)]
+        asymmetric: bool,
+    },
 }
 
 fn tag36h11() -> String {
@@ -87,6 +106,7 @@ enum Layout {
     Chessboard(usize, usize, f64),
     Charuco(CharucoBoard),
     Aprilgrid(AprilGrid),
+    Circles(CircleGrid),
 }
 
 impl TargetSpec {
@@ -208,12 +228,21 @@ impl TargetSpec {
                     dict,
                 }))
             }
+            Self::Circles {
+                cols,
+                rows,
+                spacing,
+                diameter,
+                asymmetric,
+            } => {
+                CircleGrid::new(*cols, *rows, *spacing, *diameter, *asymmetric).map(Layout::Circles)
+            }
         }
     }
 
     /// Errors (naming the field) for a target that cannot exist: too few squares or tags,
     /// non-positive or non-finite sizes, a marker not smaller than its square, an unknown
-    /// dictionary or one with fewer markers than the board needs.
+    /// dictionary or one with fewer markers than the board needs, circles that touch.
     pub fn validate(&self) -> CoreResult<()> {
         self.layout().map(|_| ())
     }
@@ -224,6 +253,7 @@ impl TargetSpec {
             Ok(Layout::Chessboard(c, r, _)) => c * r,
             Ok(Layout::Charuco(b)) => b.num_corners(),
             Ok(Layout::Aprilgrid(g)) => g.num_corners(),
+            Ok(Layout::Circles(g)) => g.len(),
             Err(_) => 0,
         }
     }
@@ -237,13 +267,15 @@ impl TargetSpec {
             }
             Layout::Charuco(b) => b.corner_position(id)?,
             Layout::Aprilgrid(g) => g.corner_position(id)?,
+            Layout::Circles(g) => g.position(id)?,
         };
         Some(Vector3::new(p[0], p[1], 0.0))
     }
 
     /// Colour of the printed target at board point `(x, y)` (board units): `Some(true)` black,
     /// `Some(false)` white, `None` outside the pattern. For synthetic renders and overlays.
-    /// Chessboards have their outer ring of squares, the square beyond corner 0 black.
+    /// Chessboards have their outer ring of squares, the square beyond corner 0 black; circle
+    /// grids a white card reaching one spacing beyond the outer centres.
     pub fn is_black(&self, x: f64, y: f64) -> Option<bool> {
         match self.layout().ok()? {
             Layout::Chessboard(c, r, s) => {
@@ -253,6 +285,7 @@ impl TargetSpec {
             }
             Layout::Charuco(b) => b.is_black(x, y),
             Layout::Aprilgrid(g) => g.is_black(x, y),
+            Layout::Circles(g) => g.is_black(x, y),
         }
     }
 
@@ -349,7 +382,8 @@ impl TargetDetection {
 
 /// Finds the corners of `spec` in `img`.
 ///
-/// Chessboards go to [`detect_chessboard`] (all corners or none). ChArUco boards and
+/// Chessboards go to [`detect_chessboard`] and circle grids to [`detect_circles`] (all
+/// corners or none; circle centres corrected for perspective). ChArUco boards and
 /// AprilGrids yield every corner next to a decoded marker, so partial views count. Never
 /// fails: an invalid spec, invalid options or an image without the target give no corners and
 /// a `reason`.
@@ -385,6 +419,21 @@ pub fn detect_target(img: &Gray, spec: &TargetSpec, opts: &TargetOptions) -> Tar
         }
         Layout::Charuco(b) => (b.dict, 1, b.num_markers()),
         Layout::Aprilgrid(g) => (g.dict, 2, g.tag_rows * g.tag_cols),
+        Layout::Circles(g) => {
+            return match detect_circles(img, g, opts.min_contrast) {
+                CirclesDetection::Found(cs) => TargetDetection {
+                    corners: cs
+                        .iter()
+                        .map(|c| CornerObservation {
+                            index: c.id,
+                            pixel: c.corrected,
+                        })
+                        .collect(),
+                    ..TargetDetection::default()
+                },
+                CirclesDetection::NotFound(reason) => TargetDetection::failed(reason),
+            };
+        }
     };
     let scan = detect_markers(img, &dict, border, opts.min_contrast, opts.min_marker_px);
     let mut warnings = Vec::new();
@@ -432,7 +481,7 @@ pub fn detect_target(img: &Gray, spec: &TargetSpec, opts: &TargetOptions) -> Tar
     let (corners, rejected) = match &layout {
         Layout::Charuco(b) => charuco_corners(&s, b, &mine, opts.min_contrast),
         Layout::Aprilgrid(g) => aprilgrid_corners(&s, g, &mine, opts.min_contrast),
-        Layout::Chessboard(..) => (Vec::new(), 0),
+        Layout::Chessboard(..) | Layout::Circles(..) => (Vec::new(), 0),
     };
     if rejected > 0 {
         warnings.push(format!(
@@ -457,8 +506,9 @@ pub fn detect_target(img: &Gray, spec: &TargetSpec, opts: &TargetOptions) -> Tar
     }
 }
 
-/// Every target calibrates: its ids and board positions are what the solvers need. Only a
-/// plain chessboard is ambiguous under a half-turn (marker boards carry their ids).
+/// Every target calibrates: its ids and board positions are what the solvers need. A plain
+/// chessboard and circle grids symmetric under a half turn are ambiguous under it (marker
+/// boards carry their ids).
 impl crate::calib::PlanarTarget for TargetSpec {
     fn validate(&self) -> CoreResult<()> {
         TargetSpec::validate(self)
@@ -484,6 +534,19 @@ impl crate::calib::PlanarTarget for TargetSpec {
             Self::Aprilgrid {
                 tag_cols, tag_rows, ..
             } => format!("{tag_cols}×{tag_rows} AprilGrid"),
+            Self::Circles {
+                cols,
+                rows,
+                asymmetric,
+                ..
+            } => format!(
+                "{cols}×{rows} {} circle grid",
+                if *asymmetric {
+                    "asymmetric"
+                } else {
+                    "symmetric"
+                }
+            ),
         }
     }
 
@@ -496,6 +559,10 @@ impl crate::calib::PlanarTarget for TargetSpec {
                     square: *square,
                 })
             }
+            Self::Circles { .. } => match self.layout() {
+                Ok(Layout::Circles(g)) => g.half_turn(),
+                _ => None,
+            },
             _ => None,
         }
     }
