@@ -272,7 +272,12 @@ fn sensor(img: &[f64], w: usize, h: usize, rng: &mut Rng) -> Gray {
         let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, q);
         use image::ImageEncoder;
         if enc
-            .write_image(&gray.data, gray.width, gray.height, image::ExtendedColorType::L8)
+            .write_image(
+                &gray.data,
+                gray.width,
+                gray.height,
+                image::ExtendedColorType::L8,
+            )
             .is_ok()
             && let Ok(g) = decode_gray8(&out, &ImageLimits::default())
         {
@@ -439,7 +444,11 @@ fn main() {
             "--tune" => sources.extend(files.into_iter().map(|f| (f, Split::Tune))),
             "--held-out" => sources.extend(files.into_iter().map(|f| (f, Split::HeldOut))),
             "--split" => sources.extend(files.into_iter().enumerate().map(|(i, f)| {
-                let s = if i % 2 == 0 { Split::Tune } else { Split::HeldOut };
+                let s = if i % 2 == 0 {
+                    Split::Tune
+                } else {
+                    Split::HeldOut
+                };
                 (f, s)
             })),
             "--exclude" | "--out" => {}
@@ -498,19 +507,16 @@ fn main() {
     );
 }
 
-fn report(
-    split: Split,
-    samples: &[Sample],
-    scored: &[Scores],
-    old: &BlurParams,
-    new: &BlurParams,
-) {
+fn report(split: Split, samples: &[Sample], scored: &[Scores], old: &BlurParams, new: &BlurParams) {
     for strong_only in [false, true] {
         let idx: Vec<usize> = (0..samples.len())
             .filter(|&i| samples[i].split == split)
             .filter(|&i| !(strong_only && samples[i].kind == Kind::Mild))
             .collect();
-        let label: Vec<bool> = idx.iter().map(|&i| samples[i].kind != Kind::Sharp).collect();
+        let label: Vec<bool> = idx
+            .iter()
+            .map(|&i| samples[i].kind != Kind::Sharp)
+            .collect();
         let n_blur = label.iter().filter(|&&b| b).count();
         println!(
             "\n{split:?}{}: {} images ({} sharp, {} blurred)",
@@ -564,7 +570,11 @@ fn report(
             let s: Vec<f64> = idx.iter().map(|&i| score(i)).collect();
             let v: Vec<bool> = idx.iter().map(|&i| verdict(i)).collect();
             let share = |k: Kind| {
-                let of: Vec<usize> = idx.iter().copied().filter(|&i| samples[i].kind == k).collect();
+                let of: Vec<usize> = idx
+                    .iter()
+                    .copied()
+                    .filter(|&i| samples[i].kind == k)
+                    .collect();
                 let n = of.iter().filter(|&&i| verdict(i)).count();
                 if of.is_empty() {
                     "   -".to_string()

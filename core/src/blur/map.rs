@@ -169,7 +169,9 @@ pub fn render_map_png(gray: &Gray, map: &BlurMap) -> CoreResult<Vec<u8>> {
         || plane.w.div_ceil(wb) != cols
         || plane.h.div_ceil(wb) != rows
     {
-        return Err(CoreError::input("the blur map does not belong to this image"));
+        return Err(CoreError::input(
+            "the blur map does not belong to this image",
+        ));
     }
     let img = RgbImage::from_fn(plane.w as u32, plane.h as u32, |x, y| {
         let g = f64::from(plane.px[y as usize * plane.w + x as usize]);

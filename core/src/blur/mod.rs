@@ -141,8 +141,7 @@ impl BlurParams {
         if !(0.0..=1.0).contains(&self.blur_threshold) {
             return Err(CoreError::param("blur_threshold", "must be within [0, 1]"));
         }
-        if self.map_block != 0
-            && !(MAP_BLOCK_RANGE.0..=MAP_BLOCK_RANGE.1).contains(&self.map_block)
+        if self.map_block != 0 && !(MAP_BLOCK_RANGE.0..=MAP_BLOCK_RANGE.1).contains(&self.map_block)
         {
             return Err(CoreError::param(
                 "map_block",

@@ -103,7 +103,12 @@ pub(crate) fn working_plane(gray: &Gray) -> Plane {
     let f = w.max(h).div_ceil(WORK_SIDE).max(1);
     if f == 1 {
         let px = gray.data.iter().map(|&v| f32::from(v)).collect();
-        return Plane { w, h, px, factor: 1 };
+        return Plane {
+            w,
+            h,
+            px,
+            factor: 1,
+        };
     }
     let (rw, rh) = (w / f, h / f);
     let mut px = vec![0f32; rw * rh];
@@ -112,7 +117,10 @@ pub(crate) fn working_plane(gray: &Gray) -> Plane {
         for yy in ry * f..(ry + 1) * f {
             let row = gray.row(yy);
             for (rx, o) in out.iter_mut().enumerate() {
-                let s: u32 = row[rx * f..(rx + 1) * f].iter().map(|&v| u32::from(v)).sum();
+                let s: u32 = row[rx * f..(rx + 1) * f]
+                    .iter()
+                    .map(|&v| u32::from(v))
+                    .sum();
                 *o += s as f32;
             }
         }

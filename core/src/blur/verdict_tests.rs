@@ -215,7 +215,10 @@ fn map_marks_the_blurred_half_and_the_flat_blocks() {
     let (left, right) = (mean(0, 5), mean(7, 12));
     assert!(left > right + 0.15, "left {left}, right {right}");
     for c in 0..12 {
-        assert!(m.flat[(7 * 12 + c) as usize], "block (7, {c}) should be flat");
+        assert!(
+            m.flat[(7 * 12 + c) as usize],
+            "block (7, {c}) should be flat"
+        );
     }
     assert_eq!(m.summary.extent, BlurExtent::Local, "{:?}", m.summary);
     let png = render_map_png(&g, &m).expect("png");
