@@ -12,7 +12,7 @@ use std::io::{Read, Seek};
 
 use serde::{Deserialize, Serialize};
 
-use super::{BlurParams, FrameSelection, laplacian_variance, svd_beta};
+use super::{BlurParams, FrameSelection, combined_score, laplacian_variance, svd_beta};
 use crate::error::{CoreError, CoreResult};
 use crate::io::Gray;
 use crate::progress::Progress;
@@ -30,6 +30,9 @@ pub struct FrameScore {
     pub laplacian_variance: f64,
     /// Singular-value feature β of the luma plane.
     pub svd_beta: f64,
+    /// Combined blur score of the luma plane in [0, 1] (higher = blurrier; see
+    /// [`super::combined_score`]).
+    pub blur_score: f64,
     /// The verdict of the parameters' rule.
     pub blurred: bool,
 }
@@ -99,12 +102,14 @@ pub fn score_clip<R: Read + Seek>(
         };
         let lap = laplacian_variance(&gray);
         let beta = svd_beta(&gray, params.k)?;
+        let score = combined_score(&gray).score;
         frames.push(FrameScore {
             index: frame.index,
             pts_s: frame.pts_s,
             laplacian_variance: lap,
             svd_beta: beta,
-            blurred: params.is_blurred(lap, beta),
+            blur_score: score,
+            blurred: params.is_blurred(lap, beta, score),
         });
         progress.report("scoring frames", frames.len() as u64, total);
     }
