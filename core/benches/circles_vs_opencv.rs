@@ -53,6 +53,9 @@ struct Case {
 
 /// RMS error of `pts[id]` against `truth[id]`, and of the half-turned numbering; the smaller
 /// with whether it was the turned one.
+/// One view as OpenCV found it: found, centres, milliseconds.
+type PeerView = (bool, Vec<[f64; 2]>, f64);
+
 fn rms(pts: &[[f64; 2]], truth: &[(usize, [f64; 2])]) -> Option<(f64, bool)> {
     if pts.len() != truth.len() || pts.is_empty() {
         return None;
@@ -173,7 +176,7 @@ fn main() {
             }
         }
         // OpenCV, all images of this case in one process.
-        let peer: Option<Vec<(bool, Vec<[f64; 2]>, f64)>> = python.as_ref().and_then(|py| {
+        let peer: Option<Vec<PeerView>> = python.as_ref().and_then(|py| {
             let script = dir.join("peer.py");
             std::fs::write(&script, PEER).ok()?;
             let out = Command::new(py)

@@ -176,7 +176,7 @@ pub fn render_map_png(gray: &Gray, map: &BlurMap) -> CoreResult<Vec<u8>> {
     let img = RgbImage::from_fn(plane.w as u32, plane.h as u32, |x, y| {
         let g = f64::from(plane.px[y as usize * plane.w + x as usize]);
         let b = (y as usize / wb) * cols + x as usize / wb;
-        let edge = x as usize % wb == 0 || y as usize % wb == 0;
+        let edge = (x as usize).is_multiple_of(wb) || (y as usize).is_multiple_of(wb);
         let px = if map.flat[b] {
             [0.6 * g; 3]
         } else {

@@ -52,11 +52,11 @@ pub use verdict::{CombinedScore, DEFAULT_BLUR_THRESHOLD, WORK_SIDE, combined_sco
 #[serde(rename_all = "lowercase")]
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 pub enum BlurRule {
-    /// The combined score is above `blur_threshold` (default: normalised for scale, contrast
-    /// and noise, so the default threshold holds across cameras).
-    #[default]
+    /// The combined score is above `blur_threshold` (normalised for scale, contrast and noise;
+    /// not yet the default: its threshold has not been evaluated on a held-out set).
     Combined,
     /// Blurred if either absolute score says so (catches more blur, more false alarms).
+    #[default]
     Either,
     /// Blurred only if both scores agree (fewer false alarms).
     Both,
@@ -111,7 +111,7 @@ impl Default for BlurParams {
             laplacian_threshold: 100.0,
             beta_threshold: 0.6,
             blur_threshold: DEFAULT_BLUR_THRESHOLD,
-            rule: BlurRule::Combined,
+            rule: BlurRule::Either,
             map_block: 32,
             select: FrameSelection::default(),
         }

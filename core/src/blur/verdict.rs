@@ -40,9 +40,10 @@
 //!   a low-contrast sharp photo is judged on its own strongest edges, and those are in the
 //!   sharp subject when the background is out of focus.
 //! - **Motion vs defocus**: each direction keeps its own ratio. Motion blur raises ρ along the
-//!   motion and hardly across it; defocus raises all four. The score pools the directions; the
-//!   spread of the four ratios is reported as `anisotropy` and the blurriest direction as
-//!   `blur_direction_deg`.
+//!   motion and hardly across it; defocus raises all four. The score is the mean of the pooled
+//!   ratio and the blurriest direction's (pooling alone dilutes a one-directional blur by the
+//!   three directions it hardly touches); the spread of the four ratios is reported as
+//!   `anisotropy` and the blurriest direction as `blur_direction_deg`.
 
 use serde::{Deserialize, Serialize};
 
@@ -333,10 +334,12 @@ pub fn combined_score(gray: &Gray) -> CombinedScore {
     let textured_share = textured as f64 / cmax.len().max(1) as f64;
     let (f, c) = e.totals();
     let (fs, cs): (f64, f64) = (f.iter().sum(), c.iter().sum());
-    let fmax = f.iter().copied().fold(0.0, f64::max);
+    // A direction is judged where the scene has structure along it at the coarse scale: motion
+    // blur removes the fine energy along the motion, so the fine energy cannot decide that.
+    let cmax = c.iter().copied().fold(0.0, f64::max);
     let mut directional = [None; 4];
     for d in 0..4 {
-        if f[d] > 0.0 && f[d] >= 0.1 * fmax {
+        if f[d] > 0.0 && c[d] >= 0.1 * cmax {
             directional[d] = Some((c[d] / f[d]).min(1.0));
         }
     }
@@ -354,7 +357,14 @@ pub fn combined_score(gray: &Gray) -> CombinedScore {
     } else {
         present.iter().copied().fold(0.0, f64::max) - present.iter().copied().fold(1.0, f64::min)
     };
-    let score = if fs > 0.0 { (cs / fs).min(1.0) } else { 1.0 };
+    // Pooled over directions, a blur along one direction is diluted by the three it hardly
+    // touches: the score averages the pooled ratio with the blurriest direction's.
+    let pooled = if fs > 0.0 { (cs / fs).min(1.0) } else { 1.0 };
+    let score = if present.is_empty() {
+        pooled
+    } else {
+        0.5 * (pooled + blurriest.0)
+    };
     CombinedScore {
         score,
         noise_sigma: sigma,

@@ -101,7 +101,10 @@ fn defocus(w: u32, h: u32, img: &[f64], r: i64) -> Vec<f64> {
 
 #[test]
 fn combined_verdict_separates_sharp_and_blurred_across_resolution_and_noise() {
-    let params = BlurParams::default();
+    let params = BlurParams {
+        rule: BlurRule::Combined,
+        ..BlurParams::default()
+    };
     for (w, h) in [(320u32, 240u32), (1280, 960)] {
         // Blur in proportion to the frame: 3 % of the width for motion, 1 % radius for defocus.
         let scale = w as usize / 320;

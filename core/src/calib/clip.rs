@@ -3,9 +3,11 @@
 //! Detection is the expensive step (tens of milliseconds a frame at 1080p), and neighbouring
 //! frames of a clip are nearly the same view, so not every frame is searched: the clip is cut
 //! into windows of `⌈frames / max_candidates⌉` consecutive frames and only the sharpest frame
-//! of each window (Laplacian variance of the luma plane) goes to the detector. Frames stream
-//! through the decoder: one window's best frame and one batch of frames being detected (in
-//! parallel) are all that is held, whatever the clip's length. [`super::select::select_views`]
+//! of each window (Laplacian variance of the luma plane) goes to the detector. Decoding runs on
+//! the calling thread while the rayon pool detects earlier batches (at most two batches in
+//! flight; past that the decoding thread detects the batch itself), so decoding and detection
+//! overlap on every core. Frames stream through the decoder: one window's best frame and a few
+//! batches being detected are all that is held, whatever the clip's length. [`super::select::select_views`]
 //! then chooses among the candidates.
 
 use std::io::{Read, Seek};
@@ -100,15 +102,14 @@ pub fn clip_candidates<R: Read + Seek>(
     let window = total.div_ceil(max_candidates as u64).max(1);
     // Frames detected together: enough to keep every core busy, few enough to stay small.
     let batch_len = 2 * rayon::current_num_threads().max(1);
-    let mut batch: Vec<Pending> = Vec::with_capacity(batch_len);
-    let mut best: Option<Pending> = None;
-    let mut candidates = Vec::new();
-    let mut issues = Vec::new();
-    let mut size: Option<[u32; 2]> = None;
-    let mut decoded = 0u64;
-    let flush = |batch: &mut Vec<Pending>, out: &mut Vec<ClipCandidate>| {
-        let found: Vec<ClipCandidate> = batch
-            .par_drain(..)
+    let found = std::sync::Mutex::new(Vec::new());
+    // Batches being detected in the background while decoding goes on; beyond this many the
+    // decoding thread detects the batch itself (bounded memory, and it helps the pool).
+    let in_flight = std::sync::atomic::AtomicUsize::new(0);
+    const MAX_IN_FLIGHT: usize = 2;
+    let detect_batch = |batch: Vec<Pending>| {
+        let out: Vec<ClipCandidate> = batch
+            .into_par_iter()
             .map(|p| ClipCandidate {
                 index: p.index,
                 pts_s: p.pts_s,
@@ -116,62 +117,88 @@ pub fn clip_candidates<R: Read + Seek>(
                 detection: detect_target(&p.gray, target, detect),
             })
             .collect();
-        out.extend(found);
+        if let Ok(mut f) = found.lock() {
+            f.extend(out);
+        }
     };
-    while let Some(next) = reader.next_frame() {
-        progress.check()?;
-        let frame = match next {
-            Ok(f) => f,
-            Err(VideoError::Canceled) => return Err(CoreError::Canceled),
-            Err(e) => {
-                issues.push(e.to_string());
-                break;
+    let mut issues = Vec::new();
+    let mut size: Option<[u32; 2]> = None;
+    let mut decoded = 0u64;
+    let outcome: CoreResult<()> = rayon::in_place_scope(|scope| {
+        let mut batch: Vec<Pending> = Vec::with_capacity(batch_len);
+        let mut best: Option<Pending> = None;
+        let hand_off = |batch: Vec<Pending>| {
+            use std::sync::atomic::Ordering::SeqCst;
+            if in_flight.fetch_add(1, SeqCst) < MAX_IN_FLIGHT {
+                let (detect_batch, in_flight) = (&detect_batch, &in_flight);
+                scope.spawn(move |_| {
+                    detect_batch(batch);
+                    in_flight.fetch_sub(1, SeqCst);
+                });
+            } else {
+                detect_batch(batch);
+                in_flight.fetch_sub(1, SeqCst);
             }
         };
-        decoded += 1;
-        let g = frame.image.into_luma();
-        let (width, height) = g.dimensions();
-        match size {
-            None => size = Some([width, height]),
-            Some(s) if s != [width, height] => {
-                return Err(CoreError::input(format!(
-                    "frame {} is {width}×{height}, earlier frames {}×{}: one camera, one \
-                     resolution",
-                    frame.index, s[0], s[1]
-                )));
+        while let Some(next) = reader.next_frame() {
+            progress.check()?;
+            let frame = match next {
+                Ok(f) => f,
+                Err(VideoError::Canceled) => return Err(CoreError::Canceled),
+                Err(e) => {
+                    issues.push(e.to_string());
+                    break;
+                }
+            };
+            decoded += 1;
+            let g = frame.image.into_luma();
+            let (width, height) = g.dimensions();
+            match size {
+                None => size = Some([width, height]),
+                Some(s) if s != [width, height] => {
+                    return Err(CoreError::input(format!(
+                        "frame {} is {width}×{height}, earlier frames {}×{}: one camera, one \
+                         resolution",
+                        frame.index, s[0], s[1]
+                    )));
+                }
+                Some(_) => {}
             }
-            Some(_) => {}
+            let gray = Gray {
+                width,
+                height,
+                data: g.into_raw(),
+            };
+            let lap = laplacian_variance(&gray);
+            let this = Pending {
+                index: frame.index,
+                pts_s: frame.pts_s,
+                lap,
+                gray,
+            };
+            // A new window starts: its predecessor's best frame goes to the detector.
+            let same_window = best
+                .as_ref()
+                .is_some_and(|b| b.index / window == this.index / window);
+            if same_window {
+                if best.as_ref().is_some_and(|b| this.lap > b.lap) {
+                    best = Some(this);
+                }
+            } else if let Some(done) = best.replace(this) {
+                batch.push(done);
+                if batch.len() == batch_len {
+                    hand_off(std::mem::replace(&mut batch, Vec::with_capacity(batch_len)));
+                }
+            }
+            progress.report("reading frames", decoded, total);
         }
-        let gray = Gray {
-            width,
-            height,
-            data: g.into_raw(),
-        };
-        let lap = laplacian_variance(&gray);
-        let this = Pending {
-            index: frame.index,
-            pts_s: frame.pts_s,
-            lap,
-            gray,
-        };
-        // A new window starts: its predecessor's best frame goes to the detector.
-        let same_window = best
-            .as_ref()
-            .is_some_and(|b| b.index / window == this.index / window);
-        if same_window {
-            if best.as_ref().is_some_and(|b| this.lap > b.lap) {
-                best = Some(this);
-            }
-        } else if let Some(done) = best.replace(this) {
-            batch.push(done);
-            if batch.len() == batch_len {
-                flush(&mut batch, &mut candidates);
-            }
-        }
-        progress.report("reading frames", decoded, total);
-    }
-    batch.extend(best);
-    flush(&mut batch, &mut candidates);
+        batch.extend(best);
+        hand_off(batch);
+        Ok(())
+    });
+    outcome?;
+    let mut candidates = found.into_inner().unwrap_or_default();
+    candidates.sort_by_key(|c| c.index);
     issues.extend(reader.issues().iter().map(|i| i.message.clone()));
     let Some(image_size) = size else {
         return Err(CoreError::input(format!(

@@ -88,6 +88,26 @@ impl Kind for BlurScore {
             Err(e) => return Err(e.into()),
         };
         let svg = render_svg(&report, &params);
+        let mut artifacts = vec![Artifact::svg("scores.svg", svg)];
+        // Blur maps as heat maps over the image (`NAME.blurmap.png`): where the frame is sharp.
+        let mut seen = std::collections::HashSet::new();
+        for (i, (f, score)) in input.files.iter().zip(&report.images).enumerate() {
+            progress.check()?;
+            let Some(map) = &score.map else { continue };
+            let bytes = (input.load)(f).map_err(|e| {
+                JobError::Transient(format!("storage: cannot read {}: {e}", f.name))
+            })?;
+            let gray = caliper_core::io::decode_gray8(&bytes, &limits)?;
+            let mut name = format!("{}.blurmap.png", super::stem(super::base_name(&f.name)));
+            if !seen.insert(name.clone()) {
+                name = format!("{}-{i}.blurmap.png", super::stem(super::base_name(&f.name)));
+            }
+            artifacts.push(Artifact {
+                name,
+                media_type: "image/png".into(),
+                data: caliper_core::blur::render_map_png(&gray, map)?.into(),
+            });
+        }
         let quality = json!({
             "images": report.summary.count,
             "blurred": report.summary.blurred_count,
@@ -98,7 +118,7 @@ impl Kind for BlurScore {
         Ok(JobOutput {
             parameters,
             quality,
-            artifacts: vec![Artifact::svg("scores.svg", svg)],
+            artifacts,
         })
     }
 }

@@ -125,7 +125,7 @@ fn lattice_numbering_follows_the_board() {
             [300.0 + c * x - s * y, 200.0 + s * x + c * y]
         };
         let mut blobs = lattice_blobs(&g, f);
-        blobs.push(blob_at([310.0, 215.0], 3.0));
+        blobs.push(blob_at([520.0, 420.0], 3.0));
         blobs.push(blob_at([100.0, 100.0], 3.0));
         let ids = find_lattice(&blobs, &g).expect("lattice");
         let n_expected = g.len();
