@@ -27,7 +27,7 @@ pub struct BlurScoreArgs {
     /// Blurred if β is above this [default: 0.6].
     #[arg(long)]
     pub beta_threshold: Option<f64>,
-    /// How the two verdicts combine: either, both, laplacian, beta [default: either].
+    /// Which scores decide: either, both, laplacian, beta or combined [default: either].
     #[arg(long)]
     pub rule: Option<String>,
 }
