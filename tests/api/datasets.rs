@@ -89,7 +89,7 @@ async fn sixteen_bit_tiff_imu_log_and_video_are_accepted() {
     let (st, p) = s
         .post_json(
             "/v1/jobs",
-            &json!({"kind": "camera_calibration", "dataset": ds["id"], "params": {"board": {"cols": 9, "rows": 6, "square": 0.025}}}),
+            &json!({"kind": "rig_calibration", "dataset": ds["id"], "params": {"board": {"cols": 9, "rows": 6, "square": 0.025}}}),
         )
         .await;
     assert_eq!(st, 422);

@@ -62,10 +62,18 @@ async fn blur_score_round_trip_ranks_the_sharp_image_first() {
     assert_eq!(doc["parameters"]["ranking"][0], "sharp.png");
     assert_eq!(sh["rank"], 1);
 
-    // The artifact is an SVG plot.
+    // The artifacts: an SVG plot and a blur map per image.
     let (status, arts) = s.get_json(&format!("/v1/jobs/{id}/artifacts")).await;
     assert_eq!(status, 200);
-    assert_eq!(arts["items"][0]["name"], "scores.svg");
+    let names: Vec<&str> = arts["items"]
+        .as_array()
+        .expect("items")
+        .iter()
+        .filter_map(|a| a["name"].as_str())
+        .collect();
+    for want in ["scores.svg", "sharp.blurmap.png", "blurred.blurmap.png"] {
+        assert!(names.contains(&want), "{want} missing from {names:?}");
+    }
     let r = s
         .client
         .get(s.url(&format!("/v1/jobs/{id}/artifacts/scores.svg")))
