@@ -56,7 +56,7 @@ pub const WORK_SIDE: usize = 1024;
 /// Default threshold of the combined score: an image is blurred if its score is above it.
 /// Chosen on the TUNE split of `examples/blur_eval.rs` (see the module docs there) and checked
 /// on its held-out split.
-pub const DEFAULT_BLUR_THRESHOLD: f64 = 0.55;
+pub const DEFAULT_BLUR_THRESHOLD: f64 = 0.6;
 
 /// Block side, in working-resolution pixels, of the texture count (`textured_share`).
 pub(crate) const SCORE_BLOCK: usize = 32;
