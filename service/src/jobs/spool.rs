@@ -45,3 +45,12 @@ pub(crate) fn single_clip(input: &JobInput) -> Option<&DatasetFile> {
         _ => None,
     }
 }
+
+/// A decoder error as the job's error: cancellation stays cancellation, anything else is the
+/// clip's fault (`invalid_input`).
+pub(crate) fn video_error(e: caliper_core::video::VideoError) -> JobError {
+    match e {
+        caliper_core::video::VideoError::Canceled => JobError::Canceled,
+        other => JobError::from(caliper_core::CoreError::input(other.to_string())),
+    }
+}

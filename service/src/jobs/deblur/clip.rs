@@ -10,16 +10,9 @@ use image::{DynamicImage, ImageFormat};
 use serde_json::json;
 
 use super::{permanent, restore};
-use crate::jobs::spool::SpooledClip;
+use crate::jobs::spool::{SpooledClip, video_error};
 use crate::jobs::{JobError, JobInput, JobOutput};
 use crate::store::DatasetFile;
-
-fn video_error(e: VideoError) -> JobError {
-    match e {
-        VideoError::Canceled => JobError::Canceled,
-        other => permanent(other.to_string()),
-    }
-}
 
 /// Restores the frames `pick` chooses from the clip `f`.
 pub(super) fn deblur_clip(

@@ -15,7 +15,7 @@ use caliper_core::video::{FrameFormat, FrameOptions, FrameReader, VideoError, Vi
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
-use crate::jobs::spool::SpooledClip;
+use crate::jobs::spool::{SpooledClip, video_error};
 use crate::jobs::{JobError, JobInput, ParamError};
 use crate::store::DatasetFile;
 
@@ -106,13 +106,6 @@ pub(super) struct ClipSequence {
     pub images: Vec<PhotoImage>,
     pub frames: Vec<(u64, f64)>,
     pub summary: Value,
-}
-
-fn video_error(e: VideoError) -> JobError {
-    match e {
-        VideoError::Canceled => JobError::Canceled,
-        other => JobError::from(caliper_core::CoreError::input(other.to_string())),
-    }
 }
 
 /// Decodes the kept frames of the clip `f`.
