@@ -11,7 +11,7 @@ use serde_json::{Value, json};
 use crate::common::*;
 
 /// A sharp colour scene: checkerboard plus deterministic texture, one pattern per channel.
-fn sharp_rgb(w: u32, h: u32) -> Vec<[f64; 3]> {
+pub(crate) fn sharp_rgb(w: u32, h: u32) -> Vec<[f64; 3]> {
     let grey = sharp_image(w, h);
     (0..h)
         .flat_map(|y| (0..w).map(move |x| (x, y)))
@@ -23,7 +23,7 @@ fn sharp_rgb(w: u32, h: u32) -> Vec<[f64; 3]> {
 }
 
 /// Convolve with `psf`, clamping at the borders (the service's boundary model must cope).
-fn blur(img: &[[f64; 3]], w: usize, h: usize, psf: &Psf) -> Vec<[f64; 3]> {
+pub(crate) fn blur(img: &[[f64; 3]], w: usize, h: usize, psf: &Psf) -> Vec<[f64; 3]> {
     let (rx, ry) = (psf.width / 2, psf.height / 2);
     let mut out = vec![[0.0; 3]; w * h];
     for y in 0..h {
@@ -61,7 +61,7 @@ fn to_png16(img: &[[f64; 3]], w: u32, h: u32) -> Vec<u8> {
 }
 
 /// PSNR over the interior (the outer `margin` pixels depend on the unknown boundary).
-fn psnr(a: &[[f64; 3]], b: &[[f64; 3]], w: usize, h: usize, margin: usize) -> f64 {
+pub(crate) fn psnr(a: &[[f64; 3]], b: &[[f64; 3]], w: usize, h: usize, margin: usize) -> f64 {
     let mut se = 0.0;
     let mut n = 0usize;
     for y in margin..h - margin {
@@ -219,7 +219,7 @@ fn grey_png(img: &[[f64; 3]], w: u32, h: u32) -> Vec<u8> {
 }
 
 /// The kernel a job used, from its JSON artifact (`{width, height, kernel: rows}`).
-async fn kernel_of(s: &TestServer, job: &str, stem: &str) -> Psf {
+pub(crate) async fn kernel_of(s: &TestServer, job: &str, stem: &str) -> Psf {
     let text = reqwest::get(s.url(&format!("/v1/jobs/{job}/artifacts/{stem}.kernel.json")))
         .await
         .expect("kernel")

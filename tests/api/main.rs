@@ -12,6 +12,7 @@ mod crash_loop;
 mod dashboard;
 mod datasets;
 mod deblur;
+mod deblur_gyro_clip;
 mod documents;
 mod errors;
 mod hardening;

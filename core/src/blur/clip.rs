@@ -9,6 +9,10 @@
 //! are nearly the same view.
 
 use std::io::{Read, Seek};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering::SeqCst};
+
+use rayon::prelude::*;
 
 use serde::{Deserialize, Serialize};
 
@@ -81,38 +85,94 @@ pub fn score_clip<R: Read + Seek>(
     let mut reader = FrameReader::open(r, limits, options).map_err(video_error)?;
     let info = reader.info().clone();
     let total = info.frame_count;
-    let mut frames = Vec::new();
-    let mut issues = Vec::new();
-    while let Some(next) = reader.next_frame() {
-        progress.check()?;
-        let frame = match next {
-            Ok(f) => f,
-            Err(VideoError::Canceled) => return Err(CoreError::Canceled),
+    // Decoding is sequential; scoring (β above all) costs more than decoding at 1080p. The
+    // decoder runs on this thread and hands batches of frames to the rayon pool, at most
+    // `MAX_IN_FLIGHT` at a time (beyond that it scores the batch itself: bounded memory).
+    let batch_len = 2 * rayon::current_num_threads().max(1);
+    const MAX_IN_FLIGHT: usize = 2;
+    let in_flight = AtomicUsize::new(0);
+    let scored = Mutex::new(Vec::new());
+    let failed: Mutex<Option<CoreError>> = Mutex::new(None);
+    let score_batch = |batch: Vec<(u64, f64, Gray)>| {
+        let out: CoreResult<Vec<FrameScore>> = batch
+            .into_par_iter()
+            .map(|(index, pts_s, gray)| {
+                progress.check()?;
+                let lap = laplacian_variance(&gray);
+                let beta = svd_beta(&gray, params.k)?;
+                let score = combined_score(&gray).score;
+                Ok(FrameScore {
+                    index,
+                    pts_s,
+                    laplacian_variance: lap,
+                    svd_beta: beta,
+                    blur_score: score,
+                    blurred: params.is_blurred(lap, beta, score),
+                })
+            })
+            .collect();
+        match out {
+            Ok(v) => {
+                if let Ok(mut s) = scored.lock() {
+                    progress.report("scoring frames", (s.len() + v.len()) as u64, total);
+                    s.extend(v);
+                }
+            }
             Err(e) => {
-                issues.push(e.to_string());
-                break;
+                if let Ok(mut f) = failed.lock() {
+                    f.get_or_insert(e);
+                }
+            }
+        }
+    };
+    let mut issues = Vec::new();
+    let outcome: CoreResult<()> = rayon::in_place_scope(|scope| {
+        let hand_off = |batch: Vec<(u64, f64, Gray)>| {
+            if in_flight.fetch_add(1, SeqCst) < MAX_IN_FLIGHT {
+                let (score_batch, in_flight) = (&score_batch, &in_flight);
+                scope.spawn(move |_| {
+                    score_batch(batch);
+                    in_flight.fetch_sub(1, SeqCst);
+                });
+            } else {
+                score_batch(batch);
+                in_flight.fetch_sub(1, SeqCst);
             }
         };
-        let g = frame.image.into_luma();
-        let (width, height) = g.dimensions();
-        let gray = Gray {
-            width,
-            height,
-            data: g.into_raw(),
-        };
-        let lap = laplacian_variance(&gray);
-        let beta = svd_beta(&gray, params.k)?;
-        let score = combined_score(&gray).score;
-        frames.push(FrameScore {
-            index: frame.index,
-            pts_s: frame.pts_s,
-            laplacian_variance: lap,
-            svd_beta: beta,
-            blur_score: score,
-            blurred: params.is_blurred(lap, beta, score),
-        });
-        progress.report("scoring frames", frames.len() as u64, total);
+        let mut batch = Vec::with_capacity(batch_len);
+        while let Some(next) = reader.next_frame() {
+            progress.check()?;
+            let frame = match next {
+                Ok(f) => f,
+                Err(VideoError::Canceled) => return Err(CoreError::Canceled),
+                Err(e) => {
+                    issues.push(e.to_string());
+                    break;
+                }
+            };
+            let g = frame.image.into_luma();
+            let (width, height) = g.dimensions();
+            let gray = Gray {
+                width,
+                height,
+                data: g.into_raw(),
+            };
+            batch.push((frame.index, frame.pts_s, gray));
+            if batch.len() == batch_len {
+                hand_off(std::mem::replace(&mut batch, Vec::with_capacity(batch_len)));
+            }
+        }
+        if !batch.is_empty() {
+            hand_off(batch);
+        }
+        Ok(())
+    });
+    outcome?;
+    if let Some(e) = failed.into_inner().ok().flatten() {
+        return Err(e);
     }
+    let mut frames = scored.into_inner().unwrap_or_default();
+    frames.sort_by_key(|f| f.index);
     issues.extend(reader.issues().iter().map(|i| format!("{i:?}")));
     if frames.is_empty() {
         return Err(CoreError::input(format!(

@@ -53,10 +53,11 @@ pub use verdict::{CombinedScore, DEFAULT_BLUR_THRESHOLD, WORK_SIDE, combined_sco
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 pub enum BlurRule {
     /// The combined score is above `blur_threshold` (normalised for scale, contrast and noise;
-    /// not yet the default: its threshold has not been evaluated on a held-out set).
-    Combined,
-    /// Blurred if either absolute score says so (catches more blur, more false alarms).
+    /// its threshold was chosen on one split of real photos and holds on a held-out split).
     #[default]
+    Combined,
+    /// Blurred if either absolute score says so (catches more blur, more false alarms; the
+    /// thresholds depend on resolution, contrast and noise).
     Either,
     /// Blurred only if both scores agree (fewer false alarms).
     Both,
@@ -68,9 +69,10 @@ pub enum BlurRule {
 
 /// Parameters of [`score_images`].
 ///
-/// The thresholds are data-dependent (resolution, noise, content): the defaults are
-/// conventional starting points, not calibrated values. Score a few frames you know to be
-/// sharp and blurred, look at the raw scores in the report, and set the thresholds from them.
+/// The default verdict is the combined score against `blur_threshold`, which needs no
+/// per-camera tuning. The Laplacian and β thresholds are data-dependent (resolution, noise,
+/// content) and only decide under the other rules: conventional starting points, not
+/// calibrated values.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
@@ -111,7 +113,7 @@ impl Default for BlurParams {
             laplacian_threshold: 100.0,
             beta_threshold: 0.6,
             blur_threshold: DEFAULT_BLUR_THRESHOLD,
-            rule: BlurRule::Either,
+            rule: BlurRule::Combined,
             map_block: 32,
             select: FrameSelection::default(),
         }

@@ -259,8 +259,8 @@ fn map_and_score_params_are_validated() {
     }
     let p: BlurParams = serde_json::from_str(r#"{"rule": "either"}"#).expect("old rule");
     assert_eq!(p.rule, BlurRule::Either);
-    // Opt-in until its threshold is evaluated on held-out real photos.
-    assert_eq!(BlurParams::default().rule, BlurRule::Either);
+    // The combined score decides by default (its threshold holds on a held-out split).
+    assert_eq!(BlurParams::default().rule, BlurRule::Combined);
 }
 
 #[test]

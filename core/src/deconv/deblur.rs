@@ -63,6 +63,9 @@ pub struct DeblurParams {
     pub gyro_grid: Option<[usize; 2]>,
     /// For a video dataset: which frames to restore (required there, refused for images).
     pub frames: Option<super::FramePick>,
+    /// Method `gyro` on a video dataset: the IMU log and where the frames lie on its clock;
+    /// each frame gets the kernel of its own exposure (in place of `gyro`).
+    pub gyro_clip: Option<super::GyroClipParams>,
 }
 
 impl Default for DeblurParams {
@@ -77,6 +80,7 @@ impl Default for DeblurParams {
             gyro: None,
             gyro_grid: None,
             frames: None,
+            gyro_clip: None,
         }
     }
 }
@@ -115,29 +119,41 @@ impl DeblurParams {
             }
             (None, false) => {}
         }
+        let on_clip = self.frames.is_some();
+        if self.gyro_clip.is_some() && !(on_clip && self.method == Gyro) {
+            return Err(CoreError::param(
+                "gyro_clip",
+                "only used by method gyro on a video dataset (with `frames`)",
+            ));
+        }
+        if let Some(g) = &self.gyro_clip {
+            g.validate().map_err(|e| prefixed("gyro_clip", e))?;
+        }
         match (&self.gyro, self.method == Gyro) {
+            (None, true) if on_clip && self.gyro_clip.is_none() => {
+                return Err(CoreError::param(
+                    "gyro_clip",
+                    "method gyro on a clip needs gyro_clip: the IMU log and the clip's start \
+                     on its clock",
+                ));
+            }
+            (None, true) if on_clip => {}
             (None, true) => return Err(CoreError::param("gyro", "method gyro needs a trace")),
+            (Some(_), true) if on_clip => {
+                return Err(CoreError::param(
+                    "gyro",
+                    "a trace covers one exposure; for a clip give gyro_clip instead",
+                ));
+            }
             (Some(_), false) => {
                 return Err(CoreError::param("gyro", "only used by method gyro"));
             }
             // Errors name the field by its path in the request (`gyro.fx`), as every other.
-            (Some(g), true) => g.validate().map_err(|e| match e {
-                CoreError::InvalidParam { field, message } => CoreError::InvalidParam {
-                    field: format!("gyro.{field}"),
-                    message,
-                },
-                other => other,
-            })?,
+            (Some(g), true) => g.validate().map_err(|e| prefixed("gyro", e))?,
             (None, false) => {}
         }
         if let Some(f) = &self.frames {
             f.validate()?;
-            if self.method == Gyro {
-                return Err(CoreError::param(
-                    "frames",
-                    "gyro deblurring of clip frames is not supported (a trace covers one exposure)",
-                ));
-            }
         }
         if let Some([nx, ny]) = self.gyro_grid {
             if self.method != Gyro {
@@ -201,6 +217,18 @@ impl DeblurParams {
             },
             ..BlindParams::default()
         }
+    }
+}
+
+/// A nested struct's validation error, with the field named by its path (`gyro.fx`) as
+/// every other field is.
+fn prefixed(prefix: &str, e: CoreError) -> CoreError {
+    match e {
+        CoreError::InvalidParam { field, message } => CoreError::InvalidParam {
+            field: format!("{prefix}.{field}"),
+            message,
+        },
+        other => other,
     }
 }
 

@@ -49,7 +49,7 @@ pub use deblur::{DeblurMethod, DeblurOutput, DeblurParams, MAX_GYRO_GRID, deblur
 pub use fft::{Fft2, fast_len, is_smooth};
 pub use frames::{FramePick, MAX_CLIP_FRAMES};
 pub use gyro::{GyroPsfParams, GyroSample, gyro_psf, gyro_psf_at, gyro_psf_grid};
-pub use gyro_log::gyro_trace_from_log;
+pub use gyro_log::{GyroClipParams, GyroLog, gyro_trace_from_log};
 pub use metrics::{error_ratio, error_ratio_aligned, psnr, ssim};
 pub use psf::{MAX_PSF_SIZE, Psf};
 pub use resample::resize;

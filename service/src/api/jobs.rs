@@ -157,6 +157,10 @@ pub async fn create_job(
         )
         .with_field("dataset"));
     }
+    let aux = match kind.aux_dataset(&params).map_err(ApiError::from)? {
+        Some(aux) => Some(check_aux_dataset(&state, &who, &aux).await?),
+        None => None,
+    };
     let sensor = req
         .device
         .as_ref()
@@ -172,6 +176,7 @@ pub async fn create_job(
         id: Uuid::now_v7(),
         kind: kind.name().to_string(),
         dataset_id: dataset.id,
+        aux_dataset_id: aux,
         device: req.device.clone(),
         sensor,
         params,
@@ -185,6 +190,41 @@ pub async fn create_job(
         .create_job(new, state.config().max_queued_jobs)
         .await?;
     created_response(&state, created, req.dataset)
+}
+
+/// The second dataset a job's parameters name: it must exist, be visible to the caller and
+/// hold the kind of data the job reads from it; errors name the parameter.
+async fn check_aux_dataset(
+    state: &AppState,
+    who: &Principal,
+    aux: &crate::jobs::AuxDataset,
+) -> ApiResult<Uuid> {
+    let d = state
+        .store()
+        .get_dataset(aux.id)
+        .await?
+        .filter(|d| who.sees_dataset(d.devices.as_deref()))
+        .ok_or_else(|| {
+            ApiError::new(
+                "unknown_dataset",
+                format!("dataset {} does not exist", aux.id),
+            )
+            .with_field(aux.field)
+        })?;
+    if d.kind != aux.kind {
+        return Err(ApiError::new(
+            "dataset_kind_mismatch",
+            format!(
+                "{} must name a dataset of kind {}, but {} holds {}",
+                aux.field,
+                aux.kind.as_str(),
+                d.id,
+                d.kind.as_str()
+            ),
+        )
+        .with_field(aux.field));
+    }
+    Ok(d.id)
 }
 
 /// The `Idempotency-Key` header, if any, checked.

@@ -21,13 +21,17 @@ pub struct BlurScoreArgs {
     /// Singular values in the numerator of β [default: 10].
     #[arg(long)]
     pub k: Option<usize>,
-    /// Blurred if the Laplacian variance is below this [default: 100].
+    /// With rule either/both/laplacian: blurred if the Laplacian variance is below this
+    /// [default: 100].
     #[arg(long)]
     pub laplacian_threshold: Option<f64>,
-    /// Blurred if β is above this [default: 0.6].
+    /// With rule either/both/beta: blurred if β is above this [default: 0.6].
     #[arg(long)]
     pub beta_threshold: Option<f64>,
-    /// Which scores decide: either, both, laplacian, beta or combined [default: either].
+    /// With rule combined: blurred if the combined score (0–1) is above this [default: 0.6].
+    #[arg(long)]
+    pub blur_threshold: Option<f64>,
+    /// Which scores decide: combined, either, both, laplacian or beta [default: combined].
     #[arg(long)]
     pub rule: Option<String>,
 }
@@ -58,6 +62,7 @@ impl Kind for BlurScore {
             a.laplacian_threshold.map(Value::from),
         );
         put("beta_threshold", a.beta_threshold.map(Value::from));
+        put("blur_threshold", a.blur_threshold.map(Value::from));
         put("rule", a.rule.clone().map(Value::from));
         Ok(Value::Object(params))
     }

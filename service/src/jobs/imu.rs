@@ -24,6 +24,14 @@ fn open_log(input: &JobInput) -> Result<Box<dyn BufRead>, JobError> {
         code: "invalid_input",
         message: "the dataset has no file".into(),
     })?;
+    open_log_file(input, f)
+}
+
+/// Open one log file of the input (its own dataset's or the second one's) for streaming.
+pub(crate) fn open_log_file(
+    input: &JobInput,
+    f: &crate::store::DatasetFile,
+) -> Result<Box<dyn BufRead>, JobError> {
     let raw = (input.open)(f)
         .map_err(|e| JobError::Transient(format!("storage: cannot open {}: {e}", f.name)))?;
     let reader: Box<dyn Read> = if f.media_type == "application/gzip" {

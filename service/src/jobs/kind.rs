@@ -77,6 +77,18 @@ pub enum ExportError {
     Corrupt(String),
 }
 
+/// A second dataset a job reads besides its own, named in its parameters: deblurring a
+/// clip frame by frame with method `gyro` reads the device's IMU log from an `imu_log`
+/// dataset. The service checks that it exists, is visible to the caller and has the right
+/// kind before queueing, and keeps it from being deleted while the job may run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AuxDataset {
+    /// The parameter naming it, from the body's root (`params.gyro_clip.imu_dataset`).
+    pub field: &'static str,
+    pub id: uuid::Uuid,
+    pub kind: DatasetKind,
+}
+
 /// Local context of an offline run, for kinds whose flags name files.
 pub struct CliContext<'a> {
     /// The input files as given on the command line (directories not yet expanded).
@@ -126,6 +138,18 @@ pub trait Kind: Send + Sync + 'static {
     /// The parameters object the flags stand for (files they name are read here).
     fn cli_params(cli: &Self::Cli, ctx: &CliContext<'_>) -> Result<Value, RunError>;
 
+    /// The second dataset checked parameters name, if any; an error when the service needs
+    /// one the parameters do not name (offline runs give a file instead and never ask).
+    fn aux_dataset(_params: &Self::Params) -> Result<Option<AuxDataset>, ParamError> {
+        Ok(None)
+    }
+
+    /// Offline, the local file that stands in for [`Kind::aux_dataset`] (read as the
+    /// dataset kind it names), if the flags give one.
+    fn cli_aux_file(_cli: &Self::Cli, _params: &Value) -> Option<std::path::PathBuf> {
+        None
+    }
+
     /// Run on the input (blocking; the worker calls it on a thread of its own).
     fn run(
         &self,
@@ -154,6 +178,10 @@ pub trait JobKind: Send + Sync + 'static {
     fn cli_command(&self) -> clap::Command;
     /// The parameters object of a parsed `caliper run` subcommand.
     fn cli_params(&self, m: &ArgMatches, ctx: &CliContext<'_>) -> Result<Value, RunError>;
+    /// The second dataset normalised parameters name, if any (see [`Kind::aux_dataset`]).
+    fn aux_dataset(&self, params: &Value) -> Result<Option<AuxDataset>, ParamError>;
+    /// Offline, the local file standing in for it.
+    fn cli_aux_file(&self, m: &ArgMatches, params: &Value) -> Option<std::path::PathBuf>;
     /// Run on normalised parameters.
     fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError>;
 }
@@ -201,6 +229,14 @@ impl<K: Kind> JobKind for Registered<K> {
     fn cli_params(&self, m: &ArgMatches, ctx: &CliContext<'_>) -> Result<Value, RunError> {
         let cli = K::Cli::from_arg_matches(m).map_err(|e| RunError::Input(e.to_string()))?;
         K::cli_params(&cli, ctx)
+    }
+    fn aux_dataset(&self, params: &Value) -> Result<Option<AuxDataset>, ParamError> {
+        let p: K::Params = parse_params(params)?;
+        K::aux_dataset(&p)
+    }
+    fn cli_aux_file(&self, m: &ArgMatches, params: &Value) -> Option<std::path::PathBuf> {
+        let cli = K::Cli::from_arg_matches(m).ok()?;
+        K::cli_aux_file(&cli, params)
     }
     fn run(&self, input: &JobInput, progress: &dyn Progress) -> Result<JobOutput, JobError> {
         let p: K::Params =

@@ -24,8 +24,8 @@ use caliper_core::CoreError;
 use serde_json::Value;
 
 pub use kind::{
-    CliContext, Export, ExportError, JobKind, JsonParams, Kind, ParamError, Registered, RunError,
-    parse_params,
+    AuxDataset, CliContext, Export, ExportError, JobKind, JsonParams, Kind, ParamError, Registered,
+    RunError, parse_params,
 };
 
 use crate::store::DatasetFile;
@@ -40,6 +40,9 @@ pub type FileOpener =
 /// Everything a job kind needs to run.
 pub struct JobInput {
     pub files: Vec<DatasetFile>,
+    /// The files of the second dataset the parameters name ([`AuxDataset`]), if any; read
+    /// with the same `load` and `open`.
+    pub aux_files: Vec<DatasetFile>,
     /// Parameters as normalised by [`JobKind::normalize_params`].
     pub params: Value,
     pub load: FileLoader,

@@ -324,11 +324,29 @@ async fn execute(
             return Outcome::Done(retry(state, job, format!("store: {e}")));
         }
     };
+    // The second dataset the parameters name (the IMU log of a clip). Deletion is refused
+    // while the job is queued or running; one can only go missing in the moment between the
+    // check at queueing and the insert.
+    let aux_files = match kind.aux_dataset(&job.params) {
+        Err(e) => return Outcome::Done(permanent("invalid_param", e.to_string())),
+        Ok(None) => Vec::new(),
+        Ok(Some(aux)) => match state.store().get_dataset(aux.id).await {
+            Ok(Some(d)) => d.files,
+            Ok(None) => {
+                return Outcome::Done(permanent(
+                    "unknown_dataset",
+                    format!("{}: dataset {} no longer exists", aux.field, aux.id),
+                ));
+            }
+            Err(e) => return Outcome::Done(retry(state, job, format!("store: {e}"))),
+        },
+    };
     let blobs = state.blobs().clone();
     let handle = tokio::runtime::Handle::current();
     let (blobs2, handle2) = (blobs.clone(), handle.clone());
     let input = JobInput {
         files: dataset.files.clone(),
+        aux_files,
         params: job.params.clone(),
         load: Arc::new(move |f| {
             blobs

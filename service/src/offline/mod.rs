@@ -64,7 +64,8 @@ pub fn run(m: &ArgMatches) -> Result<String, RunError> {
             inputs: &common.inputs,
         },
     )?;
-    let doc = run_kind(kind, params, &common)?;
+    let aux = kind.cli_aux_file(sub, &params);
+    let doc = run_kind(kind, params, aux, &common)?;
     match &common.export {
         None => Ok(doc),
         Some(f) => {
@@ -77,7 +78,13 @@ pub fn run(m: &ArgMatches) -> Result<String, RunError> {
 }
 
 /// Run `kind` on the inputs; returns the sealed document (canonical JSON, or pretty).
-fn run_kind(kind: &dyn JobKind, params: Value, common: &CommonArgs) -> Result<String, RunError> {
+/// `aux` is the local file standing in for the second dataset the kind reads, if any.
+fn run_kind(
+    kind: &dyn JobKind,
+    params: Value,
+    aux: Option<PathBuf>,
+    common: &CommonArgs,
+) -> Result<String, RunError> {
     let params = kind.normalize_params(&params)?;
     let paths = inputs::expand(&common.inputs)?;
     let described = match kind.dataset_kind() {
@@ -92,14 +99,20 @@ fn run_kind(kind: &dyn JobKind, params: Value, common: &CommonArgs) -> Result<St
     if described.is_empty() {
         return Err(RunError::Input("no images among the inputs".into()));
     }
+    let aux_described = match aux {
+        Some(p) => inputs::log_file(&[(p, false)])?,
+        None => Vec::new(),
+    };
     let by_sha: std::collections::HashMap<String, PathBuf> = described
         .iter()
+        .chain(&aux_described)
         .map(|(f, p)| (f.sha256.clone(), p.clone()))
         .collect();
     let by_sha2 = by_sha.clone();
     let files: Vec<DatasetFile> = described.into_iter().map(|(f, _)| f).collect();
     let input = JobInput {
         files: files.clone(),
+        aux_files: aux_described.into_iter().map(|(f, _)| f).collect(),
         params: params.clone(),
         load: Arc::new(move |f| {
             let p = by_sha

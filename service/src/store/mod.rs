@@ -178,6 +178,9 @@ pub struct NewJob {
     pub id: Uuid,
     pub kind: String,
     pub dataset_id: Uuid,
+    /// A second dataset the job reads (see [`crate::jobs::AuxDataset`]); it cannot be deleted
+    /// while the job is queued or running.
+    pub aux_dataset_id: Option<Uuid>,
     pub device: Option<String>,
     pub sensor: Option<String>,
     pub params: Value,

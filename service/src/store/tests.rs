@@ -40,6 +40,7 @@ fn new_job(ds: Uuid, key: Option<&str>, hash: &str, now: i64) -> NewJob {
         id: Uuid::now_v7(),
         kind: "blur_score".into(),
         dataset_id: ds,
+        aux_dataset_id: None,
         device: Some("dev".into()),
         sensor: Some("cam0".into()),
         params: json!({}),
@@ -328,6 +329,24 @@ async fn pruning_keeps_jobs_that_documents_cite() {
     assert_eq!(s.prune_jobs(i64::MAX / 2).await.unwrap(), 0);
     assert!(s.get_artifact(j.id, "p.svg").await.unwrap().is_some());
     assert!(reap_all(&s, i64::MAX / 2).await.is_empty());
+}
+
+#[tokio::test]
+async fn a_dataset_a_job_reads_besides_its_own_cannot_be_deleted_until_it_ends() {
+    let (s, _d) = store().await;
+    let (clip, log) = (dataset(&s).await, dataset(&s).await);
+    let mut j = new_job(clip, None, "h", 1);
+    j.aux_dataset_id = Some(log);
+    let job = created(&s, j).await;
+    match s.delete_dataset(log).await.unwrap() {
+        DeleteDataset::InUse(ids) => assert_eq!(ids, vec![job.id]),
+        other => panic!("the IMU log of a queued job was not protected: {other:?}"),
+    }
+    assert!(s.cancel_job(job.id, 2).await.is_ok());
+    assert!(matches!(
+        s.delete_dataset(log).await.unwrap(),
+        DeleteDataset::Deleted
+    ));
 }
 
 #[tokio::test]

@@ -4,7 +4,8 @@
 
 use caliper_core::Progress;
 use caliper_core::blur::BlurParams;
-use caliper_core::deconv::{DeblurParams, FramePick, MAX_CLIP_FRAMES};
+use caliper_core::deconv::{DeblurParams, FramePick, GyroLog, MAX_CLIP_FRAMES};
+use caliper_core::imu::{ImuCsvParams, ImuLog, read_imu_log};
 use caliper_core::video::{FrameFormat, FrameOptions, FrameReader, VideoError, VideoLimits};
 use image::{DynamicImage, ImageFormat};
 use serde_json::json;
@@ -13,6 +14,21 @@ use super::{permanent, restore};
 use crate::jobs::spool::{SpooledClip, video_error};
 use crate::jobs::{JobError, JobInput, JobOutput};
 use crate::store::DatasetFile;
+
+/// The IMU log of method gyro: the job's second dataset (or `--gyro` offline), parsed.
+fn read_gyro_log(input: &JobInput, progress: &dyn Progress) -> Result<ImuLog, JobError> {
+    let f = input.aux_files.first().ok_or_else(|| {
+        permanent(
+            "method gyro on a clip needs the IMU log: gyro_clip.imu_dataset (offline: --gyro)"
+                .into(),
+        )
+    })?;
+    let reader = crate::jobs::imu::open_log_file(input, f)?;
+    read_imu_log(reader, &ImuCsvParams::default(), progress).map_err(|e| match e {
+        caliper_core::CoreError::Canceled => JobError::Canceled,
+        other => permanent(format!("IMU log {}: {other}", f.name)),
+    })
+}
 
 /// Restores the frames `pick` chooses from the clip `f`.
 pub(super) fn deblur_clip(
@@ -63,6 +79,12 @@ pub(super) fn deblur_clip(
         indices: Some(wanted.iter().copied().collect()),
         ..FrameOptions::default()
     };
+    // Method gyro: the IMU log is parsed once; each frame's trace is cut out of it.
+    let imu = match &p.gyro_clip {
+        Some(_) => Some(read_gyro_log(input, progress)?),
+        None => None,
+    };
+    let gyro_log = imu.as_ref().map(GyroLog::new);
     let mut reader = FrameReader::open(clip.reader()?, &limits, options).map_err(video_error)?;
     let (mut artifacts, mut frames) = (Vec::new(), Vec::new());
     let total = wanted.len() as u64;
@@ -82,15 +104,41 @@ pub(super) fn deblur_clip(
         };
         let name = format!("frame_{:06}.png", frame.index);
         progress.report("deblur", frames.len() as u64, total);
+        // Each frame's own exposure window on the log's clock, for method gyro.
+        let per_frame;
+        let frame_params = match (&p.gyro_clip, &gyro_log) {
+            (Some(g), Some(log)) => {
+                let trace = g.frame(log, frame.pts_s).map_err(|e| {
+                    permanent(format!(
+                        "frame {} at {:.3} s: {e}",
+                        frame.index, frame.pts_s
+                    ))
+                })?;
+                per_frame = DeblurParams {
+                    gyro: Some(trace),
+                    gyro_clip: None,
+                    frames: None,
+                    ..p.clone()
+                };
+                &per_frame
+            }
+            _ => p,
+        };
         let mut entry = restore(
             &img,
             ImageFormat::Png,
             &name,
-            p,
+            frame_params,
             &name,
             &mut artifacts,
             progress,
         )?;
+        if let Some(g) = &p.gyro_clip {
+            entry["exposure_start_ns"] = json!(
+                g.clip_start_ns
+                    .saturating_add((frame.pts_s * 1e9).round() as i64)
+            );
+        }
         entry["index"] = json!(frame.index);
         entry["pts_s"] = json!(frame.pts_s);
         frames.push(entry);

@@ -20,8 +20,8 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 
 use super::{
-    Artifact, CliContext, JobError, JobInput, JobOutput, Kind, ParamError, RunError, base_name,
-    stem,
+    Artifact, AuxDataset, CliContext, JobError, JobInput, JobOutput, Kind, ParamError, RunError,
+    base_name, stem,
 };
 use crate::store::DatasetKind;
 
@@ -107,6 +107,14 @@ impl Kind for Deblur {
 
     fn check(p: &mut DeblurParams) -> Result<(), ParamError> {
         p.validate().map_err(|e| ParamError::from_core("", e))?;
+        // One spelling of the IMU dataset's id, so equal requests hash alike.
+        if let Some(g) = p.gyro_clip.as_mut()
+            && let Some(id) = g.imu_dataset.as_mut()
+        {
+            *id = uuid::Uuid::parse_str(id)
+                .map_err(|e| ParamError::new("gyro_clip.imu_dataset", format!("not a UUID: {e}")))?
+                .to_string();
+        }
         // Store the kernel normalised (sum 1), so the job and its document use the same one.
         if let Some(k) = p.psf.take() {
             p.psf = Some(
@@ -119,6 +127,30 @@ impl Kind for Deblur {
 
     fn cli_params(a: &DeblurArgs, _: &CliContext<'_>) -> Result<Value, RunError> {
         params_from_flags(a)
+    }
+
+    fn aux_dataset(p: &DeblurParams) -> Result<Option<AuxDataset>, ParamError> {
+        let Some(g) = &p.gyro_clip else {
+            return Ok(None);
+        };
+        const FIELD: &str = "params.gyro_clip.imu_dataset";
+        let id = g.imu_dataset.as_deref().ok_or_else(|| {
+            ParamError::new(
+                "gyro_clip.imu_dataset",
+                "name the imu_log dataset holding the device's gyro log",
+            )
+        })?;
+        let id = uuid::Uuid::parse_str(id)
+            .map_err(|e| ParamError::new("gyro_clip.imu_dataset", format!("not a UUID: {e}")))?;
+        Ok(Some(AuxDataset {
+            field: FIELD,
+            id,
+            kind: DatasetKind::ImuLog,
+        }))
+    }
+
+    fn cli_aux_file(a: &DeblurArgs, params: &Value) -> Option<PathBuf> {
+        params.get("gyro_clip").and(a.gyro.clone())
     }
 
     fn run(
@@ -279,9 +311,17 @@ pub struct DeblurArgs {
     /// With an IMU log as `--gyro`: start of the exposure on the log's clock, ns.
     #[arg(long)]
     pub exposure_start_ns: Option<i64>,
+    /// With an IMU log as `--gyro` and a clip as input: log-clock time at which the exposure
+    /// of the frame shown at 0 s starts, ns (each frame then gets its own kernel).
+    #[arg(long)]
+    pub clip_start_ns: Option<i64>,
     /// With an IMU log as `--gyro`: exposure time, ms.
     #[arg(long)]
     pub exposure_ms: Option<f64>,
+    /// For a clip: which frames to restore: `every:N`, `times:T1,T2,…` (seconds) or
+    /// `blurred` (the frames the blur verdict flags).
+    #[arg(long, value_parser = parse_frames)]
+    pub frames: Option<caliper_core::deconv::FramePick>,
     /// A `caliper.camera/v1` document whose intrinsics complete `--gyro`.
     #[arg(long)]
     pub camera: Option<PathBuf>,
@@ -289,6 +329,22 @@ pub struct DeblurArgs {
     /// centre (blur that varies across the frame), e.g. `8x8`.
     #[arg(long, value_parser = parse_grid)]
     pub gyro_grid: Option<[usize; 2]>,
+}
+
+/// `every:N`, `times:T1,T2,…` or `blurred` → a frame choice.
+fn parse_frames(s: &str) -> Result<caliper_core::deconv::FramePick, String> {
+    use caliper_core::deconv::FramePick;
+    let bad = || format!("{s:?}: expected every:N, times:T1,T2,… or blurred");
+    match s.split_once(':') {
+        None if s == "blurred" => Ok(FramePick::Blurred),
+        Some(("every", n)) => n.trim().parse().map(FramePick::Every).map_err(|_| bad()),
+        Some(("times", t)) => t
+            .split(',')
+            .map(|v| v.trim().parse::<f64>().map_err(|_| bad()))
+            .collect::<Result<Vec<_>, _>>()
+            .map(FramePick::Times),
+        _ => Err(bad()),
+    }
 }
 
 /// `NXxNY` → `[nx, ny]`.
@@ -345,9 +401,25 @@ fn params_from_flags(a: &DeblurArgs) -> Result<Value, RunError> {
             params[key] = v;
         }
     }
+    if let Some(f) = &a.frames {
+        params["frames"] = serde_json::to_value(f).map_err(|e| RunError::Job(e.to_string()))?;
+    }
     if let Some(path) = &a.gyro {
         let name = path.to_string_lossy().to_ascii_lowercase();
-        let mut g: Value = if name.ends_with(".csv") || name.ends_with(".csv.gz") {
+        let is_log = name.ends_with(".csv") || name.ends_with(".csv.gz");
+        if let Some(start) = a.clip_start_ns {
+            // A clip: the log is read by the job (as the service reads the IMU dataset).
+            let (true, Some(cam), Some(ms)) = (is_log, &a.camera, a.exposure_ms) else {
+                return Err(RunError::Input(
+                    "--clip-start-ns needs an IMU log as --gyro, --camera and --exposure-ms".into(),
+                ));
+            };
+            let mut g = json!({"clip_start_ns": start, "exposure_s": ms * 1e-3});
+            copy_intrinsics(cam, &mut g)?;
+            params["gyro_clip"] = g;
+            return Ok(params);
+        }
+        let mut g: Value = if is_log {
             if a.camera.is_none() {
                 return Err(RunError::Input(
                     "an IMU log as --gyro needs --camera for the intrinsics".into(),
@@ -365,28 +437,35 @@ fn params_from_flags(a: &DeblurArgs) -> Result<Value, RunError> {
                 .map_err(|e| RunError::Input(format!("{} is not JSON: {e}", path.display())))?
         };
         if let Some(cam) = &a.camera {
-            let text = std::fs::read_to_string(cam)?;
-            let doc: Value = serde_json::from_str(&text)
-                .map_err(|e| RunError::Input(format!("{} is not JSON: {e}", cam.display())))?;
-            let intr = doc
-                .pointer("/parameters/camera")
-                .or_else(|| doc.get("camera"))
-                .ok_or_else(|| {
-                    RunError::Input(format!(
-                        "{} is not a caliper.camera/v1 document (no parameters.camera)",
-                        cam.display()
-                    ))
-                })?;
-            for k in ["fx", "fy", "cx", "cy"] {
-                let v = intr.get(k).cloned().ok_or_else(|| {
-                    RunError::Input(format!("{}: the camera has no {k}", cam.display()))
-                })?;
-                g[k] = v;
-            }
+            copy_intrinsics(cam, &mut g)?;
         }
         params["gyro"] = g;
     }
     Ok(params)
+}
+
+/// Copy fx, fy, cx, cy of the `caliper.camera/v1` document at `cam` into `g`.
+fn copy_intrinsics(cam: &Path, g: &mut Value) -> Result<(), RunError> {
+    let text = std::fs::read_to_string(cam)?;
+    let doc: Value = serde_json::from_str(&text)
+        .map_err(|e| RunError::Input(format!("{} is not JSON: {e}", cam.display())))?;
+    let intr = doc
+        .pointer("/parameters/camera")
+        .or_else(|| doc.get("camera"))
+        .ok_or_else(|| {
+            RunError::Input(format!(
+                "{} is not a caliper.camera/v1 document (no parameters.camera)",
+                cam.display()
+            ))
+        })?;
+    for k in ["fx", "fy", "cx", "cy"] {
+        let v = intr
+            .get(k)
+            .cloned()
+            .ok_or_else(|| RunError::Input(format!("{}: the camera has no {k}", cam.display())))?;
+        g[k] = v;
+    }
+    Ok(())
 }
 
 /// The gyro trace of an IMU log file (CSV or gzip) over one exposure, as the `gyro` object.

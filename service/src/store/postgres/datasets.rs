@@ -152,7 +152,7 @@ impl DatasetStore for PgStore {
             return Ok(DeleteDataset::NotFound);
         }
         let users: Vec<String> = sqlx::query_scalar(
-            "SELECT id FROM jobs WHERE dataset_id = $1 AND status IN ('queued', 'running') ORDER BY id",
+            "SELECT id FROM jobs WHERE (dataset_id = $1 OR aux_dataset_id = $1) AND status IN ('queued', 'running') ORDER BY id",
         )
         .bind(id.to_string())
         .fetch_all(&mut *tx)

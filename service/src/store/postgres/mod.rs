@@ -50,6 +50,11 @@ fn migrator() -> Migrator {
     Migrator::with_migrations(vec![
         m(1, "initial", include_str!("migrations/0001_initial.sql")),
         m(2, "video", include_str!("migrations/0002_video.sql")),
+        m(
+            3,
+            "aux_dataset",
+            include_str!("migrations/0003_aux_dataset.sql"),
+        ),
     ])
 }
 

@@ -113,7 +113,7 @@ impl JobQueue for PgStore {
         }
         let q = format!(
             "INSERT INTO jobs (id, kind, dataset_id, device, sensor, params, status, max_attempts, run_at, \
-             idempotency_key, request_hash, created_at) VALUES ($1, $2, $3, $4, $5, $6, 'queued', $7, $8, $9, $10, $8) \
+             idempotency_key, request_hash, created_at, aux_dataset_id) VALUES ($1, $2, $3, $4, $5, $6, 'queued', $7, $8, $9, $10, $8, $11) \
              RETURNING {JOB_COLS}"
         );
         let row = sqlx::query(AssertSqlSafe(q))
@@ -127,6 +127,7 @@ impl JobQueue for PgStore {
             .bind(job.now)
             .bind(&job.idempotency_key)
             .bind(&job.request_hash)
+            .bind(job.aux_dataset_id.map(|u| u.to_string()))
             .fetch_one(&mut *tx)
             .await?;
         let rec = job_from_row(&row)?;

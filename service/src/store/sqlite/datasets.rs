@@ -163,8 +163,9 @@ impl DatasetStore for SqliteStore {
             return Ok(DeleteDataset::NotFound);
         }
         let users: Vec<String> = sqlx::query_scalar(
-            "SELECT id FROM jobs WHERE dataset_id = ? AND status IN ('queued', 'running') ORDER BY id",
+            "SELECT id FROM jobs WHERE (dataset_id = ? OR aux_dataset_id = ?) AND status IN ('queued', 'running') ORDER BY id",
         )
+        .bind(id.to_string())
         .bind(id.to_string())
         .fetch_all(&mut *tx)
         .await?;

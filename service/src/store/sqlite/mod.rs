@@ -50,6 +50,11 @@ fn migrator() -> Migrator {
         ),
         m(3, "tokens", include_str!("migrations/0003_tokens.sql")),
         m(4, "video", include_str!("migrations/0004_video.sql")),
+        m(
+            5,
+            "aux_dataset",
+            include_str!("migrations/0005_aux_dataset.sql"),
+        ),
     ])
 }
 

@@ -88,7 +88,7 @@ impl JobQueue for SqliteStore {
         }
         let q = format!(
             "INSERT INTO jobs (id, kind, dataset_id, device, sensor, params, status, max_attempts, run_at, \
-             idempotency_key, request_hash, created_at) VALUES (?, ?, ?, ?, ?, ?, 'queued', ?, ?, ?, ?, ?) \
+             idempotency_key, request_hash, created_at, aux_dataset_id) VALUES (?, ?, ?, ?, ?, ?, 'queued', ?, ?, ?, ?, ?, ?) \
              RETURNING {JOB_COLS}"
         );
         let row = sqlx::query(AssertSqlSafe(q))
@@ -103,6 +103,7 @@ impl JobQueue for SqliteStore {
             .bind(&job.idempotency_key)
             .bind(&job.request_hash)
             .bind(job.now)
+            .bind(job.aux_dataset_id.map(|u| u.to_string()))
             .fetch_one(&mut *tx)
             .await?;
         let rec = job_from_row(&row)?;
