@@ -200,10 +200,20 @@ pub async fn authenticate(State(state): State<AppState>, mut req: Request, next:
         return unauthorized("send `Authorization: Bearer clp_…` (see `caliper token create`)");
     };
     let hash = crate::document::sha256_hex(secret.as_bytes());
-    let token = match state.store().token_by_hash(&hash).await {
-        Ok(Some(t)) if t.revoked_at.is_none() => t,
-        Ok(_) => return unauthorized("the token is unknown or revoked"),
-        Err(e) => return ApiError::from(e).into_response(),
+    let cache = state.token_cache();
+    let token = match cache.get(&hash) {
+        Some(t) => t,
+        None => {
+            let generation = cache.generation();
+            match state.store().token_by_hash(&hash).await {
+                Ok(Some(t)) if t.revoked_at.is_none() => {
+                    cache.put(&hash, &t, generation);
+                    t
+                }
+                Ok(_) => return unauthorized("the token is unknown or revoked"),
+                Err(e) => return ApiError::from(e).into_response(),
+            }
+        }
     };
     let need = required_scope(req.method(), &path);
     if token.scope < need {

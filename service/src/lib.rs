@@ -23,6 +23,7 @@ pub mod offline;
 pub mod server;
 pub mod state;
 pub mod store;
+pub mod token_cache;
 pub mod token_cli;
 
 pub use api::{app, openapi};

@@ -100,8 +100,9 @@ pub async fn open_state(config: Config) -> Result<(AppState, Option<File>), Star
     Ok((state, lock))
 }
 
-/// Wake this replica's workers when any replica queues a job (`LISTEN`); polling stays the
-/// fallback if the connection drops.
+/// Wake this replica's workers when any replica queues a job (`LISTEN`), polling staying the
+/// fallback if the connection drops; and empty the token cache on every revocation, caching
+/// only while the connection is up ([`crate::token_cache`]).
 fn listen_for_jobs(
     state: &AppState,
     tracker: &TaskTracker,
@@ -124,17 +125,30 @@ fn listen_for_jobs(
                     }
                 }
             };
-            if let Err(e) = listener.listen(crate::store::postgres::JOBS_CHANNEL).await {
+            let channels = [
+                crate::store::postgres::JOBS_CHANNEL,
+                crate::store::postgres::TOKENS_CHANNEL,
+            ];
+            if let Err(e) = listener.listen_all(channels).await {
                 tracing::warn!(error = %e, "LISTEN failed; retrying");
                 continue;
             }
+            // Revocations are heard from now on: token lookups may be cached.
+            state.token_cache().set_live(true);
             loop {
                 tokio::select! {
                     _ = stop.cancelled() => return,
-                    n = listener.recv() => match n {
-                        Ok(_) => state.wake_workers(),
-                        Err(e) => {
-                            tracing::warn!(error = %e, "LISTEN connection lost; reconnecting");
+                    // `try_recv`, not `recv`: the latter reconnects silently, and a
+                    // revocation sent meanwhile would be lost without our knowing.
+                    n = listener.try_recv() => match n {
+                        Ok(Some(n)) if n.channel() == crate::store::postgres::TOKENS_CHANNEL => {
+                            state.token_cache().invalidate();
+                        }
+                        Ok(Some(_)) => state.wake_workers(),
+                        Ok(None) | Err(_) => {
+                            // Until a new connection listens, stop caching.
+                            state.token_cache().set_live(false);
+                            tracing::warn!("LISTEN connection lost; reconnecting");
                             break;
                         }
                     },

@@ -39,6 +39,7 @@ struct Inner {
     finished_jobs: RwLock<HashMap<Uuid, Bytes>>,
     watchers: crate::job_watch::Watchers,
     rate_limiter: crate::auth::RateLimiter,
+    token_cache: crate::token_cache::TokenCache,
 }
 
 /// Cheap-to-clone handle on everything a handler or worker needs.
@@ -67,6 +68,7 @@ impl AppState {
                 finished_jobs: RwLock::new(HashMap::new()),
                 watchers: Default::default(),
                 rate_limiter: Default::default(),
+                token_cache: Default::default(),
             }),
         }
     }
@@ -77,6 +79,11 @@ impl AppState {
     }
 
     /// Per-token request budgets (see [`crate::auth`]).
+    /// Token lookups of this replica (see [`crate::token_cache`]).
+    pub fn token_cache(&self) -> &crate::token_cache::TokenCache {
+        &self.inner.token_cache
+    }
+
     pub fn rate_limiter(&self) -> &crate::auth::RateLimiter {
         &self.inner.rate_limiter
     }

@@ -438,6 +438,43 @@ async fn a_revoked_token_stops_on_every_replica_at_once() {
     for (p, _) in &reps {
         assert_eq!(reader.get(&p.base, "/v1/jobs").await.0, 401);
     }
+    // The replicas cache token lookups: a revocation made by the command line, beside every
+    // running replica, must end a token they have just served just the same.
+    let (st, t2) = api
+        .post(
+            &reps[0].0.base,
+            "/v1/tokens",
+            &json!({"name": "ro2", "scope": "read"}),
+        )
+        .await;
+    assert_eq!(st, 201, "{t2}");
+    let reader2 = Api {
+        client: reqwest::Client::new(),
+        token: t2["token"].as_str().expect("secret").to_owned(),
+    };
+    for _ in 0..3 {
+        for (p, _) in &reps {
+            assert_eq!(reader2.get(&p.base, "/v1/jobs").await.0, 200);
+        }
+    }
+    let out = std::process::Command::new(caliper_bin())
+        .args([
+            "token",
+            "revoke",
+            t2["id"].as_str().expect("id"),
+            "--database-url",
+        ])
+        .arg(&db.url)
+        .output()
+        .expect("caliper token revoke");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for (p, _) in &reps {
+        assert_eq!(reader2.get(&p.base, "/v1/jobs").await.0, 401);
+    }
     // Without a token nothing but health answers.
     let r = reqwest::get(format!("{}/v1/jobs", reps[0].0.base))
         .await

@@ -16,7 +16,10 @@ use rayon::prelude::*;
 
 use serde::{Deserialize, Serialize};
 
-use super::{BlurParams, FrameSelection, combined_score, laplacian_variance, svd_beta};
+use super::{
+    BlurParams, FrameSelection, clip_reduction_factor, combined_score, laplacian_variance,
+    svd_beta_reduced,
+};
 use crate::error::{CoreError, CoreResult};
 use crate::io::Gray;
 use crate::progress::Progress;
@@ -32,7 +35,8 @@ pub struct FrameScore {
     pub pts_s: f64,
     /// Variance of the 3×3 Laplacian of the luma plane.
     pub laplacian_variance: f64,
-    /// Singular-value feature β of the luma plane.
+    /// Singular-value feature β of the luma plane, box-reduced by `beta_reduction` of the
+    /// report first when its short side exceeds 480 px (see `MAX_CLIP_BETA_SIDE`).
     pub svd_beta: f64,
     /// Combined blur score of the luma plane in [0, 1] (higher = blurrier; see
     /// [`super::combined_score`]).
@@ -53,6 +57,9 @@ pub struct ClipReport {
     pub selected: Vec<usize>,
     /// Frames judged blurred.
     pub blurred_count: usize,
+    /// Integer factor by which frames were box-reduced before β (1: full resolution; frames
+    /// over 480 px on the short side are reduced so that scoring keeps up with the clip).
+    pub beta_reduction: usize,
     /// Where decoding stopped early or lost frames, for the user (empty for a sound clip).
     pub issues: Vec<String>,
 }
@@ -99,7 +106,8 @@ pub fn score_clip<R: Read + Seek>(
             .map(|(index, pts_s, gray)| {
                 progress.check()?;
                 let lap = laplacian_variance(&gray);
-                let beta = svd_beta(&gray, params.k)?;
+                let f = clip_reduction_factor(gray.width, gray.height);
+                let beta = svd_beta_reduced(&gray, params.k, f)?;
                 let score = combined_score(&gray).score;
                 Ok(FrameScore {
                     index,
@@ -181,9 +189,11 @@ pub fn score_clip<R: Read + Seek>(
         )));
     }
     let selected = pick(&frames, select);
+    let beta_reduction = clip_reduction_factor(info.width, info.height);
     Ok(ClipReport {
         video: info,
         blurred_count: frames.iter().filter(|f| f.blurred).count(),
+        beta_reduction,
         frames,
         selected,
         issues,

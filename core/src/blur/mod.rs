@@ -44,7 +44,10 @@ pub use map::{
 };
 pub use plot::render_svg;
 pub use select::FrameSelection;
-pub use svd::{MAX_BETA_SIDE, reduction_factor, svd_beta};
+pub use svd::{
+    MAX_BETA_SIDE, MAX_CLIP_BETA_SIDE, clip_reduction_factor, reduction_factor, svd_beta,
+    svd_beta_reduced,
+};
 pub use verdict::{CombinedScore, DEFAULT_BLUR_THRESHOLD, WORK_SIDE, combined_score};
 
 /// Which score decides `blurred`.

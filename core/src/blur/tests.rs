@@ -169,6 +169,43 @@ fn svd_beta_rank_deficient_falls_back() {
 }
 
 #[test]
+fn clip_beta_is_the_beta_of_the_box_reduced_frame() {
+    assert_eq!(clip_reduction_factor(640, 480), 1);
+    assert_eq!(clip_reduction_factor(1280, 720), 2);
+    assert_eq!(clip_reduction_factor(1920, 1080), 3);
+    assert_eq!(clip_reduction_factor(1080, 1920), 3);
+    let img = sharp_scene(150, 96);
+    // Reduced by hand: the mean of each 3×3 block (β is scale-invariant, so sums or means
+    // give the same value).
+    let (rw, rh) = (150 / 3, 96 / 3);
+    let mut small = Vec::with_capacity(rw * rh);
+    for y in 0..rh {
+        for x in 0..rw {
+            let mut acc = 0u32;
+            for yy in 3 * y..3 * y + 3 {
+                for xx in 3 * x..3 * x + 3 {
+                    acc += u32::from(img.data[yy * 150 + xx]);
+                }
+            }
+            small.push(acc);
+        }
+    }
+    // Compare against the exact reference on the block sums (as f64: they exceed u8).
+    let m = nalgebra::DMatrix::from_fn(rh, rw, |i, j| f64::from(small[i * rw + j]));
+    let sv = m.singular_values();
+    let mut sv: Vec<f64> = sv.iter().copied().collect();
+    sv.sort_by(|a, b| b.total_cmp(a));
+    let want = sv.iter().take(4).sum::<f64>() / sv.iter().sum::<f64>();
+    let got = svd_beta_reduced(&img, 4, 3).unwrap();
+    assert!((got - want).abs() < 1e-9, "{got} vs {want}");
+    assert_eq!(
+        svd_beta_reduced(&img, 4, 1).unwrap(),
+        svd_beta(&img, 4).unwrap()
+    );
+    assert!(svd_beta_reduced(&img, 4, 200).is_err());
+}
+
+#[test]
 fn svd_beta_edge_cases() {
     let black = Gray::new(8, 8, vec![0; 64]).unwrap();
     assert_eq!(svd_beta(&black, 3).unwrap(), 1.0);

@@ -136,6 +136,8 @@ pub async fn revoke_token(
         .revoke_token(id, crate::clock::now_ms())
         .await?
     {
+        // This replica forgets at once; the others when the store's notification arrives.
+        state.token_cache().invalidate();
         Ok(StatusCode::NO_CONTENT)
     } else {
         Err(ApiError::not_found(format!("token {id}")))

@@ -36,6 +36,9 @@ pub const JOBS_CHANNEL: &str = "caliper_jobs";
 /// Channel on which job status and progress changes are announced (payload: a JSON
 /// [`crate::state::JobEvent`]).
 pub const EVENTS_CHANNEL: &str = "caliper_job_events";
+/// `NOTIFY` channel of token revocations (payload: the token id); replicas empty their token
+/// cache on it ([`crate::token_cache`]).
+pub const TOKENS_CHANNEL: &str = "caliper_tokens";
 
 fn migrator() -> Migrator {
     let m = |version, name: &str, sql: &'static str| {

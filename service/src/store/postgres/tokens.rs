@@ -58,12 +58,21 @@ impl TokenStore for PgStore {
     }
 
     async fn revoke_token(&self, id: Uuid, now: i64) -> StoreResult<bool> {
+        // The notification goes out with the commit, so every replica's token cache is
+        // emptied before the revoking client hears back (`caliper token revoke` included).
+        let mut tx = self.pool.begin().await?;
         let r =
             sqlx::query("UPDATE tokens SET revoked_at = COALESCE(revoked_at, $1) WHERE id = $2")
                 .bind(now)
                 .bind(id.to_string())
-                .execute(&self.pool)
+                .execute(&mut *tx)
                 .await?;
+        sqlx::query("SELECT pg_notify($1, $2)")
+            .bind(super::TOKENS_CHANNEL)
+            .bind(id.to_string())
+            .execute(&mut *tx)
+            .await?;
+        tx.commit().await?;
         Ok(r.rows_affected() > 0)
     }
 }
