@@ -21,7 +21,7 @@ pub enum StartError {
     #[error("data directory {0}: {1}")]
     DataDir(String, std::io::Error),
     #[error(
-        "data directory {0} is in use by another caliper process (the embedded profile needs it exclusively)"
+        "data directory {0} is in use by another caliper process (each process needs its own: give each replica its own --data-dir)"
     )]
     Locked(String),
     #[error("store: {0}")]
@@ -53,7 +53,8 @@ pub fn metrics_handle() -> Option<PrometheusHandle> {
 
 /// Open the store and blobs: the embedded profile (SQLite + blobs in `config.data_dir`,
 /// held exclusively), or a replica of the production profile (PostgreSQL shared with other
-/// replicas; the data directory then holds only this process's temporary files).
+/// replicas; the data directory then holds only this process's temporary files). Either way
+/// the data directory is held exclusively.
 pub async fn open_state(config: Config) -> Result<(AppState, Option<File>), StartError> {
     let dir = config.data_dir.clone();
     let show = dir.display().to_string();
@@ -63,20 +64,22 @@ pub async fn open_state(config: Config) -> Result<(AppState, Option<File>), Star
     } else {
         Arc::new(SqliteStore::open(&dir.join("caliper.db")).await?)
     };
+    // The data directory is one process's: with SQLite it holds the store, on the shared
+    // profile this replica's temporary files. Holding it lets a restart clear what a killed
+    // predecessor left in `tmp/` (interrupted uploads) without touching a live process's.
+    let lock = File::create(dir.join("LOCK")).map_err(|e| StartError::DataDir(show.clone(), e))?;
+    if lock.try_lock().is_err() {
+        return Err(StartError::Locked(show));
+    }
+    if let Ok(entries) = std::fs::read_dir(dir.join("tmp")) {
+        for e in entries.flatten() {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
     let lock = if store.shared() {
-        None
+        // Leases of a dead replica expire on the database clock; its pins expire too.
+        Some(lock)
     } else {
-        let lock =
-            File::create(dir.join("LOCK")).map_err(|e| StartError::DataDir(show.clone(), e))?;
-        if lock.try_lock().is_err() {
-            return Err(StartError::Locked(show));
-        }
-        // Leftovers of interrupted uploads.
-        if let Ok(entries) = std::fs::read_dir(dir.join("tmp")) {
-            for e in entries.flatten() {
-                let _ = std::fs::remove_file(e.path());
-            }
-        }
         // We hold the store exclusively: any job still marked running belonged to a previous
         // process that died, so it can be re-queued now rather than after lease expiry.
         let recovered = store.recover_leases(crate::clock::now_ms(), true).await?;

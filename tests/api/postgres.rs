@@ -69,7 +69,7 @@ fn uuid_simple() -> String {
 }
 
 /// The first admin token, made with the CLI against the shared store.
-fn admin_token(url: &str) -> String {
+pub(crate) fn admin_token(url: &str) -> String {
     let out = std::process::Command::new(caliper_bin())
         .args([
             "token",
@@ -96,7 +96,7 @@ fn replica(db: &TestDb, blobs: &std::path::Path, extra: &[&str]) -> (Proc, tempf
 }
 
 /// A replica whose blobs go to S3 (`s3`: URL and endpoint) or to the shared directory.
-fn replica_s3(
+pub(crate) fn replica_s3(
     db: &TestDb,
     blobs: &std::path::Path,
     s3: Option<(&str, &str)>,
