@@ -121,6 +121,34 @@ fn assert_no_temp_files(data: &Path) {
     let tmp = data.join("tmp");
     let left = count_files(&tmp);
     assert_eq!(left, 0, "temporary files left in {}", tmp.display());
+    let strays = stray_blob_files(&data.join("blobs"));
+    assert!(
+        strays.is_empty(),
+        "half-written blob files left: {strays:?}"
+    );
+}
+
+/// Files of the blob directory that are not blobs (temporary files of interrupted writes).
+fn stray_blob_files(dir: &Path) -> Vec<String> {
+    let Ok(rd) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    rd.flatten()
+        .flat_map(|e| {
+            let p = e.path();
+            if p.is_dir() {
+                stray_blob_files(&p)
+            } else {
+                let name = e.file_name().to_string_lossy().into_owned();
+                let is_blob = name.len() == 64 && name.bytes().all(|b| b.is_ascii_hexdigit());
+                if is_blob {
+                    Vec::new()
+                } else {
+                    vec![p.display().to_string()]
+                }
+            }
+        })
+        .collect()
 }
 
 /// Every job ran to one end and filed at most one revision; every document verifies.
@@ -229,6 +257,10 @@ async fn fifty_kills_lose_and_corrupt_nothing_embedded() {
     let ended = settle(&c, &p.base, None, &jobs).await;
     let (docs, blobs) = check(&c, &p.base, None, &ended).await;
     assert_no_temp_files(data.path());
+    assert!(
+        count_files(&data.path().join("blobs")) > 0,
+        "the blob directory was not where the check looked"
+    );
     let succeeded = ended.iter().filter(|j| j["status"] == "succeeded").count();
     eprintln!(
         "crash loop (embedded): {CYCLES} kills, {} jobs accepted, {} ended ({succeeded} succeeded), \
