@@ -42,6 +42,9 @@ fn key(sha256: &str) -> Path {
     Path::from(format!("sha256/{a}/{b}/{sha256}"))
 }
 
+/// Directory of a local blob store holding half-written blobs (outside the `sha256/` keys).
+const PARTIAL_DIR: &str = ".partial";
+
 impl Blobs {
     /// Blobs in a local directory (created if missing).
     pub fn local(dir: &FsPath) -> Result<Self, BlobError> {
@@ -50,6 +53,29 @@ impl Blobs {
             store: Arc::new(LocalFileSystem::new_with_prefix(dir)?),
             local_root: Some(dir.to_path_buf()),
         })
+    }
+
+    /// Remove the half-written files of [`Blobs::put_bytes`] that a killed process left in
+    /// a local blob directory, when older than `age` (zero: all, for a process that holds the
+    /// directory alone; replicas sharing one leave a live writer's files alone).
+    pub fn clear_partial(&self, age: std::time::Duration) {
+        let Some(root) = &self.local_root else {
+            return;
+        };
+        let Ok(entries) = std::fs::read_dir(root.join(PARTIAL_DIR)) else {
+            return;
+        };
+        for e in entries.flatten() {
+            let old = e
+                .metadata()
+                .and_then(|m| m.modified())
+                .ok()
+                .and_then(|t| t.elapsed().ok())
+                .is_none_or(|a| a >= age);
+            if old {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
     }
 
     /// Blobs in any object store (S3, in-memory for tests).
@@ -149,7 +175,11 @@ impl Blobs {
                 use std::io::Write;
                 let parent = dest.parent().unwrap_or(&root);
                 std::fs::create_dir_all(parent)?;
-                let mut tmp = tempfile::NamedTempFile::new_in(parent)?;
+                // Written beside the blobs (one filesystem: the rename is atomic), in a
+                // directory of its own that start-up clears after a kill.
+                let staging = root.join(PARTIAL_DIR);
+                std::fs::create_dir_all(&staging)?;
+                let mut tmp = tempfile::NamedTempFile::new_in(&staging)?;
                 tmp.write_all(&data)?;
                 tmp.as_file().sync_all()?;
                 tmp.persist(&dest).map_err(|e| e.error)?;
@@ -278,5 +308,29 @@ mod tests {
         blobs.delete(&sha).await.unwrap();
         assert!(matches!(blobs.get(&sha).await, Err(BlobError::NotFound(_))));
         blobs.delete(&sha).await.unwrap();
+    }
+
+    #[tokio::test]
+    async fn half_written_blobs_are_staged_apart_and_cleared_at_start() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path().join("blobs");
+        let blobs = Blobs::local(&root).unwrap();
+        blobs.put_bytes(Bytes::from_static(b"x")).await.unwrap();
+        // What a kill in the middle of a write leaves.
+        let partial = root.join(PARTIAL_DIR);
+        std::fs::write(partial.join(".tmpA1b2C3"), b"half").unwrap();
+        blobs.clear_partial(std::time::Duration::from_secs(3600));
+        assert!(
+            partial.join(".tmpA1b2C3").exists(),
+            "a fresh file may be a live write"
+        );
+        blobs.clear_partial(std::time::Duration::ZERO);
+        assert_eq!(std::fs::read_dir(&partial).unwrap().count(), 0);
+        assert!(
+            blobs
+                .exists(&crate::document::sha256_hex(b"x"))
+                .await
+                .unwrap()
+        );
     }
 }

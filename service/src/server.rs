@@ -99,6 +99,13 @@ pub async fn open_state(config: Config) -> Result<(AppState, Option<File>), Star
     } else {
         Blobs::s3(&config.blob_url)?
     };
+    // Blobs a killed process was writing: all of them when this process holds the blob
+    // directory alone, those older than an hour in a directory shared by replicas.
+    blobs.clear_partial(if store.shared() {
+        Duration::from_secs(3600)
+    } else {
+        Duration::ZERO
+    });
     let state = AppState::new(config, store, blobs, metrics_handle());
     Ok((state, lock))
 }
