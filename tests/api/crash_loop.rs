@@ -229,10 +229,16 @@ async fn check(
     (docs, blobs)
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn fifty_kills_lose_and_corrupt_nothing_embedded() {
-    let bin = caliper_bin();
-    let data = tempfile::tempdir().expect("data");
+/// Start a process with `spawn` and kill it at a random moment of uploads and jobs, `CYCLES`
+/// times (kill moments from `seed`), then start one more and check everything (see the
+/// module docs), the temporary files of `data` included.
+async fn kill_loop_and_check(
+    profile: &str,
+    token: Option<&str>,
+    seed: u64,
+    data: &Path,
+    spawn: impl Fn() -> Proc,
+) {
     let c = reqwest::Client::builder()
         .timeout(Duration::from_secs(10))
         .build()
@@ -244,32 +250,41 @@ async fn fifty_kills_lose_and_corrupt_nothing_embedded() {
             png(&box_blur(&sharp_image(320, 240), 3)),
         ),
     ];
-    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    let mut rng = Rng(seed);
     let mut jobs = Vec::new();
     for _ in 0..CYCLES {
-        let mut p = spawn_caliper(&bin, data.path(), &["--lease-secs", "2"]);
+        let mut p = spawn();
         let kill_after = Duration::from_millis(50 + rng.next() % 700);
-        cycle(&c, &p.base, None, &files, kill_after, &mut jobs).await;
+        cycle(&c, &p.base, token, &files, kill_after, &mut jobs).await;
         let _ = p.child.kill();
         let _ = p.child.wait();
     }
-    let p = spawn_caliper(&bin, data.path(), &["--lease-secs", "2"]);
-    let ended = settle(&c, &p.base, None, &jobs).await;
-    let (docs, blobs) = check(&c, &p.base, None, &ended).await;
-    assert_no_temp_files(data.path());
-    assert!(
-        count_files(&data.path().join("blobs")) > 0,
-        "the blob directory was not where the check looked"
-    );
+    let p = spawn();
+    let ended = settle(&c, &p.base, token, &jobs).await;
+    let (docs, blobs) = check(&c, &p.base, token, &ended).await;
+    assert_no_temp_files(data);
     let succeeded = ended.iter().filter(|j| j["status"] == "succeeded").count();
     eprintln!(
-        "crash loop (embedded): {CYCLES} kills, {} jobs accepted, {} ended ({succeeded} succeeded), \
-         {docs} revisions, {blobs} artifacts read back",
+        "crash loop ({profile}): {CYCLES} kills, {} jobs accepted, {} ended ({succeeded} \
+         succeeded), {docs} revisions, {blobs} artifacts read back",
         jobs.len(),
         ended.len()
     );
     assert!(succeeded > 0, "no job got through the loop");
-    drop(p);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn fifty_kills_lose_and_corrupt_nothing_embedded() {
+    let bin = caliper_bin();
+    let data = tempfile::tempdir().expect("data");
+    kill_loop_and_check("embedded", None, 0x9e37_79b9_7f4a_7c15, data.path(), || {
+        spawn_caliper(&bin, data.path(), &["--lease-secs", "2"])
+    })
+    .await;
+    assert!(
+        count_files(&data.path().join("blobs")) > 0,
+        "the blob directory was not where the check looked"
+    );
 }
 
 /// The same loop on the production profile: each process a replica on one PostgreSQL
@@ -284,23 +299,13 @@ async fn fifty_kills_lose_and_corrupt_nothing_on_postgres_and_s3() {
         return;
     };
     let token = crate::postgres::admin_token(&db.url);
-    let c = reqwest::Client::builder()
-        .timeout(Duration::from_secs(10))
-        .build()
-        .expect("client");
-    let files = vec![
-        ("a.png".to_string(), png(&sharp_image(320, 240))),
-        (
-            "b.png".to_string(),
-            png(&box_blur(&sharp_image(320, 240), 3)),
-        ),
-    ];
     let url = format!("s3://{bucket}/crash");
     let env = crate::s3::aws_env(&endpoint);
     let env: Vec<(&str, &str)> = env.iter().map(|(k, v)| (*k, v.as_str())).collect();
     // One host's data directory across restarts, as a replica restarted in place has: its
     // temporary files are its own to clean up.
     let data = tempfile::tempdir().expect("data");
+    let bin = caliper_bin();
     let spawn = || {
         let args = [
             "--database-url",
@@ -312,29 +317,15 @@ async fn fifty_kills_lose_and_corrupt_nothing_on_postgres_and_s3() {
             "--rate-limit-per-sec",
             "0",
         ];
-        spawn_caliper_env(&caliper_bin(), data.path(), &args, &env)
+        spawn_caliper_env(&bin, data.path(), &args, &env)
     };
-    let mut rng = Rng(0x2545_f491_4f6c_dd1d);
-    let mut jobs = Vec::new();
-    for _ in 0..CYCLES {
-        let mut p = spawn();
-        let kill_after = Duration::from_millis(50 + rng.next() % 700);
-        cycle(&c, &p.base, Some(&token), &files, kill_after, &mut jobs).await;
-        let _ = p.child.kill();
-        let _ = p.child.wait();
-    }
-    let p = spawn();
-    let ended = settle(&c, &p.base, Some(&token), &jobs).await;
-    let (docs, blobs_read) = check(&c, &p.base, Some(&token), &ended).await;
-    assert_no_temp_files(data.path());
-    let succeeded = ended.iter().filter(|j| j["status"] == "succeeded").count();
-    eprintln!(
-        "crash loop (PostgreSQL + S3): {CYCLES} kills, {} jobs accepted, {} ended \
-         ({succeeded} succeeded), {docs} revisions, {blobs_read} artifacts read back",
-        jobs.len(),
-        ended.len()
-    );
-    assert!(succeeded > 0, "no job got through the loop");
-    drop(p);
+    kill_loop_and_check(
+        "PostgreSQL + S3",
+        Some(&token),
+        0x2545_f491_4f6c_dd1d,
+        data.path(),
+        spawn,
+    )
+    .await;
     db.drop_db().await;
 }

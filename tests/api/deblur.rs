@@ -219,6 +219,18 @@ fn grey_png(img: &[[f64; 3]], w: u32, h: u32) -> Vec<u8> {
 }
 
 /// The kernel a job used, from its JSON artifact (`{width, height, kernel: rows}`).
+/// Extent of the kernel's support (weights over 1e-3) along x and y, px.
+pub(crate) fn extents(k: &Psf) -> (usize, usize) {
+    let cols: Vec<usize> = (0..k.width)
+        .filter(|&x| (0..k.height).any(|y| k.at(x, y) > 1e-3))
+        .collect();
+    let rows: Vec<usize> = (0..k.height)
+        .filter(|&y| (0..k.width).any(|x| k.at(x, y) > 1e-3))
+        .collect();
+    let span = |v: &[usize]| v.last().unwrap_or(&0) - v.first().unwrap_or(&0);
+    (span(&cols), span(&rows))
+}
+
 pub(crate) async fn kernel_of(s: &TestServer, job: &str, stem: &str) -> Psf {
     let text = reqwest::get(s.url(&format!("/v1/jobs/{job}/artifacts/{stem}.kernel.json")))
         .await
@@ -271,14 +283,7 @@ async fn blind_and_gyro_deblur_return_their_kernels() {
     let done = s.wait_terminal(&id).await;
     assert_eq!(done["status"], "succeeded", "{done}");
     let k = kernel_of(&s, &id, "b").await;
-    let cols: Vec<usize> = (0..k.width)
-        .filter(|&x| (0..k.height).any(|y| k.at(x, y) > 1e-3))
-        .collect();
-    let rows: Vec<usize> = (0..k.height)
-        .filter(|&y| (0..k.width).any(|x| k.at(x, y) > 1e-3))
-        .collect();
-    let extent_x = cols.last().unwrap_or(&0) - cols.first().unwrap_or(&0);
-    let extent_y = rows.last().unwrap_or(&0) - rows.first().unwrap_or(&0);
+    let (extent_x, extent_y) = extents(&k);
     assert!(
         (4..=7).contains(&extent_x),
         "gyro streak {extent_x} px wide, kernel {k:?}"

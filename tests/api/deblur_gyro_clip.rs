@@ -8,7 +8,7 @@ use caliper_core::deconv::Psf;
 use serde_json::{Value, json};
 
 use crate::common::*;
-use crate::deblur::{blur, kernel_of, psnr, sharp_rgb};
+use crate::deblur::{blur, extents, kernel_of, psnr, sharp_rgb};
 
 const W: usize = 96;
 const H: usize = 80;
@@ -85,18 +85,6 @@ fn aligned_psnr(img: &image::GrayImage, truth: &image::GrayImage) -> f64 {
         .flat_map(|dy| (-4..=4).map(move |dx| (dx, dy)))
         .map(|(dx, dy)| psnr(&shifted(dx, dy), &t, W, H, 12))
         .fold(f64::MIN, f64::max)
-}
-
-/// Extent of the kernel's support along x and y, px.
-fn extents(k: &Psf) -> (usize, usize) {
-    let cols: Vec<usize> = (0..k.width)
-        .filter(|&x| (0..k.height).any(|y| k.at(x, y) > 1e-3))
-        .collect();
-    let rows: Vec<usize> = (0..k.height)
-        .filter(|&y| (0..k.width).any(|x| k.at(x, y) > 1e-3))
-        .collect();
-    let span = |v: &[usize]| v.last().unwrap_or(&0) - v.first().unwrap_or(&0);
-    (span(&cols), span(&rows))
 }
 
 fn gyro_clip(imu: Option<&str>, start: i64) -> Value {

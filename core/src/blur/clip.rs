@@ -10,7 +10,6 @@
 
 use std::io::{Read, Seek};
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering::SeqCst};
 
 use rayon::prelude::*;
 
@@ -23,7 +22,9 @@ use super::{
 use crate::error::{CoreError, CoreResult};
 use crate::io::Gray;
 use crate::progress::Progress;
-use crate::video::{FrameFormat, FrameOptions, FrameReader, VideoError, VideoInfo, VideoLimits};
+use crate::video::{
+    FrameFormat, FrameOptions, FrameReader, VideoError, VideoInfo, VideoLimits, overlap_batches,
+};
 
 /// The scores of one frame.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -92,12 +93,9 @@ pub fn score_clip<R: Read + Seek>(
     let mut reader = FrameReader::open(r, limits, options).map_err(video_error)?;
     let info = reader.info().clone();
     let total = info.frame_count;
-    // Decoding is sequential; scoring (β above all) costs more than decoding at 1080p. The
-    // decoder runs on this thread and hands batches of frames to the rayon pool, at most
-    // `MAX_IN_FLIGHT` at a time (beyond that it scores the batch itself: bounded memory).
+    // Scoring (β above all) costs more than decoding at 1080p: it runs on the rayon pool
+    // while this thread decodes (`overlap_batches`).
     let batch_len = 2 * rayon::current_num_threads().max(1);
-    const MAX_IN_FLIGHT: usize = 2;
-    let in_flight = AtomicUsize::new(0);
     let scored = Mutex::new(Vec::new());
     let failed: Mutex<Option<CoreError>> = Mutex::new(None);
     let score_batch = |batch: Vec<(u64, f64, Gray)>| {
@@ -134,19 +132,7 @@ pub fn score_clip<R: Read + Seek>(
         }
     };
     let mut issues = Vec::new();
-    let outcome: CoreResult<()> = rayon::in_place_scope(|scope| {
-        let hand_off = |batch: Vec<(u64, f64, Gray)>| {
-            if in_flight.fetch_add(1, SeqCst) < MAX_IN_FLIGHT {
-                let (score_batch, in_flight) = (&score_batch, &in_flight);
-                scope.spawn(move |_| {
-                    score_batch(batch);
-                    in_flight.fetch_sub(1, SeqCst);
-                });
-            } else {
-                score_batch(batch);
-                in_flight.fetch_sub(1, SeqCst);
-            }
-        };
+    let outcome: CoreResult<()> = overlap_batches(2, score_batch, |hand_off| {
         let mut batch = Vec::with_capacity(batch_len);
         while let Some(next) = reader.next_frame() {
             progress.check()?;

@@ -20,7 +20,9 @@ use crate::board::{TargetDetection, TargetOptions, TargetSpec, detect_target};
 use crate::error::{CoreError, CoreResult};
 use crate::io::Gray;
 use crate::progress::Progress;
-use crate::video::{FrameFormat, FrameOptions, FrameReader, VideoError, VideoInfo, VideoLimits};
+use crate::video::{
+    FrameFormat, FrameOptions, FrameReader, VideoError, VideoInfo, VideoLimits, overlap_batches,
+};
 
 /// One frame the detector searched.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -103,10 +105,7 @@ pub fn clip_candidates<R: Read + Seek>(
     // Frames detected together: enough to keep every core busy, few enough to stay small.
     let batch_len = 2 * rayon::current_num_threads().max(1);
     let found = std::sync::Mutex::new(Vec::new());
-    // Batches being detected in the background while decoding goes on; beyond this many the
-    // decoding thread detects the batch itself (bounded memory, and it helps the pool).
-    let in_flight = std::sync::atomic::AtomicUsize::new(0);
-    const MAX_IN_FLIGHT: usize = 2;
+    // Batches are detected on the rayon pool while this thread decodes (`overlap_batches`).
     let detect_batch = |batch: Vec<Pending>| {
         let out: Vec<ClipCandidate> = batch
             .into_par_iter()
@@ -124,22 +123,9 @@ pub fn clip_candidates<R: Read + Seek>(
     let mut issues = Vec::new();
     let mut size: Option<[u32; 2]> = None;
     let mut decoded = 0u64;
-    let outcome: CoreResult<()> = rayon::in_place_scope(|scope| {
+    let outcome: CoreResult<()> = overlap_batches(2, detect_batch, |hand_off| {
         let mut batch: Vec<Pending> = Vec::with_capacity(batch_len);
         let mut best: Option<Pending> = None;
-        let hand_off = |batch: Vec<Pending>| {
-            use std::sync::atomic::Ordering::SeqCst;
-            if in_flight.fetch_add(1, SeqCst) < MAX_IN_FLIGHT {
-                let (detect_batch, in_flight) = (&detect_batch, &in_flight);
-                scope.spawn(move |_| {
-                    detect_batch(batch);
-                    in_flight.fetch_sub(1, SeqCst);
-                });
-            } else {
-                detect_batch(batch);
-                in_flight.fetch_sub(1, SeqCst);
-            }
-        };
         while let Some(next) = reader.next_frame() {
             progress.check()?;
             let frame = match next {

@@ -46,6 +46,26 @@ pub struct GyroPsfParams {
     pub gyro_to_camera_wxyz: Option<[f64; 4]>,
 }
 
+/// Checks pinhole intrinsics `[fx, fy, cx, cy]` (focal lengths finite and > 0, principal
+/// point finite) and the gyro-to-camera rotation of a gyro kernel; errors name the field.
+pub(crate) fn check_intrinsics(k: [f64; 4], gyro_to_camera: Option<[f64; 4]>) -> CoreResult<()> {
+    let [fx, fy, cx, cy] = k;
+    for (name, v) in [("fx", fx), ("fy", fy)] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(CoreError::param(name, "must be finite and > 0"));
+        }
+    }
+    for (name, v) in [("cx", cx), ("cy", cy)] {
+        if !v.is_finite() {
+            return Err(CoreError::param(name, "must be finite"));
+        }
+    }
+    if let Some(q) = gyro_to_camera {
+        So3::from_wxyz(q).map_err(|e| CoreError::param("gyro_to_camera_wxyz", e.to_string()))?;
+    }
+    Ok(())
+}
+
 impl GyroPsfParams {
     /// Check the trace, the exposure and the intrinsics; errors name the field.
     pub fn validate(&self) -> CoreResult<()> {
@@ -75,16 +95,10 @@ impl GyroPsfParams {
         if !(self.exposure_s.is_finite() && self.exposure_s > 0.0) {
             return Err(CoreError::param("exposure_s", "must be finite and > 0"));
         }
-        for (name, v) in [("fx", self.fx), ("fy", self.fy)] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(CoreError::param(name, "must be finite and > 0"));
-            }
-        }
-        for (name, v) in [("cx", self.cx), ("cy", self.cy)] {
-            if !v.is_finite() {
-                return Err(CoreError::param(name, "must be finite"));
-            }
-        }
+        check_intrinsics(
+            [self.fx, self.fy, self.cx, self.cy],
+            self.gyro_to_camera_wxyz,
+        )?;
         // The trace must cover the exposure, up to one sample interval at either end (the rate
         // is held constant there).
         let (first, last) = (self.samples[0].t, self.samples[self.samples.len() - 1].t);
@@ -98,10 +112,6 @@ impl GyroPsfParams {
                     self.exposure_start_s
                 ),
             ));
-        }
-        if let Some(q) = self.gyro_to_camera_wxyz {
-            So3::from_wxyz(q)
-                .map_err(|e| CoreError::param("gyro_to_camera_wxyz", e.to_string()))?;
         }
         Ok(())
     }

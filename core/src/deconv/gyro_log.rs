@@ -8,10 +8,9 @@ use std::io::BufRead;
 use serde::{Deserialize, Serialize};
 
 use super::GyroSample;
-use super::gyro::GyroPsfParams;
+use super::gyro::{GyroPsfParams, check_intrinsics};
 use crate::error::{CoreError, CoreResult};
 use crate::imu::{ImuCsvParams, ImuLog, read_imu_log};
-use crate::lie::So3;
 use crate::progress::Progress;
 
 /// The gyro samples of an IMU log (the `imu_noise` formats: ns timestamps, gyro in rad/s)
@@ -120,21 +119,10 @@ impl GyroClipParams {
                 "must be finite, > 0 and at most 1 s",
             ));
         }
-        for (name, v) in [("fx", self.fx), ("fy", self.fy)] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(CoreError::param(name, "must be finite and > 0"));
-            }
-        }
-        for (name, v) in [("cx", self.cx), ("cy", self.cy)] {
-            if !v.is_finite() {
-                return Err(CoreError::param(name, "must be finite"));
-            }
-        }
-        if let Some(q) = self.gyro_to_camera_wxyz {
-            So3::from_wxyz(q)
-                .map_err(|e| CoreError::param("gyro_to_camera_wxyz", e.to_string()))?;
-        }
-        Ok(())
+        check_intrinsics(
+            [self.fx, self.fy, self.cx, self.cy],
+            self.gyro_to_camera_wxyz,
+        )
     }
 
     /// The kernel parameters of the frame shown at `pts_s`: its exposure's trace cut out of

@@ -16,6 +16,7 @@ mod demux;
 mod error;
 mod h264;
 mod limits;
+mod overlap;
 mod reader;
 mod reorder;
 mod sample_table;
@@ -29,6 +30,7 @@ use serde::{Deserialize, Serialize};
 
 pub use error::VideoError;
 pub use limits::VideoLimits;
+pub(crate) use overlap::overlap_batches;
 pub use reader::{DecodeIssue, Frame, FrameFormat, FrameImage, FrameOptions, FrameReader};
 pub use writer::{EncodableImage, WriterOptions, encode_h264_mp4, encode_h264_mp4_with};
 
