@@ -126,18 +126,7 @@ pub async fn create_job(
         .with_field("device"));
     }
     let params = kind.normalize_params(&req.params).map_err(ApiError::from)?;
-    let dataset = state
-        .store()
-        .get_dataset(req.dataset)
-        .await?
-        .filter(|d| who.sees_dataset(d.devices.as_deref()))
-        .ok_or_else(|| {
-            ApiError::new(
-                "unknown_dataset",
-                format!("dataset {} does not exist", req.dataset),
-            )
-            .with_field("dataset")
-        })?;
+    let dataset = dataset_for_job(&state, &who, req.dataset, "dataset").await?;
     let video_ok = kind.accepts_video() && dataset.kind == crate::store::DatasetKind::Video;
     if dataset.kind != kind.dataset_kind() && !video_ok {
         return Err(ApiError::new(
@@ -192,6 +181,25 @@ pub async fn create_job(
     created_response(&state, created, req.dataset)
 }
 
+/// A dataset a job request names in `field`, if the caller may see it; `unknown_dataset`
+/// otherwise (the same answer for another device's dataset as for a missing one).
+async fn dataset_for_job(
+    state: &AppState,
+    who: &Principal,
+    id: Uuid,
+    field: &str,
+) -> ApiResult<crate::store::DatasetRecord> {
+    state
+        .store()
+        .get_dataset(id)
+        .await?
+        .filter(|d| who.sees_dataset(d.devices.as_deref()))
+        .ok_or_else(|| {
+            ApiError::new("unknown_dataset", format!("dataset {id} does not exist"))
+                .with_field(field)
+        })
+}
+
 /// The second dataset a job's parameters name: it must exist, be visible to the caller and
 /// hold the kind of data the job reads from it; errors name the parameter.
 async fn check_aux_dataset(
@@ -199,18 +207,7 @@ async fn check_aux_dataset(
     who: &Principal,
     aux: &crate::jobs::AuxDataset,
 ) -> ApiResult<Uuid> {
-    let d = state
-        .store()
-        .get_dataset(aux.id)
-        .await?
-        .filter(|d| who.sees_dataset(d.devices.as_deref()))
-        .ok_or_else(|| {
-            ApiError::new(
-                "unknown_dataset",
-                format!("dataset {} does not exist", aux.id),
-            )
-            .with_field(aux.field)
-        })?;
+    let d = dataset_for_job(state, who, aux.id, aux.field).await?;
     if d.kind != aux.kind {
         return Err(ApiError::new(
             "dataset_kind_mismatch",
