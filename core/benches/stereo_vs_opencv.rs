@@ -142,7 +142,9 @@ fn camera_of(v: &Value) -> Option<PinholeRadTan> {
     .ok()
 }
 
-fn run_peer(data: &Path, corners_in: bool, runs: usize) -> Result<Peer, String> {
+/// Runs the peer on the shared images; with `corners_in`, on those corners instead of its own
+/// detections.
+fn run_peer(data: &Path, corners_in: Option<&Path>, runs: usize) -> Result<Peer, String> {
     let py = std::env::var("CALIPER_PYTHON").unwrap_or_else(|_| "python3".into());
     let dir = data.join("camera/opencv_stereo");
     let mut cmd = Command::new(py);
@@ -151,14 +153,8 @@ fn run_peer(data: &Path, corners_in: bool, runs: usize) -> Result<Peer, String> 
         .args(["--left", &format!("{}/left*.jpg", dir.display())])
         .args(["--right", &format!("{}/right*.jpg", dir.display())])
         .args(["--cols", "9", "--rows", "6", "--runs", &runs.to_string()]);
-    if corners_in {
-        cmd.args([
-            "--corners-in",
-            &data
-                .join("camera/corners/opencv_stereo.json")
-                .display()
-                .to_string(),
-        ]);
+    if let Some(file) = corners_in {
+        cmd.arg("--corners-in").arg(file);
     }
     let out = cmd
         .output()
@@ -353,7 +349,11 @@ fn main() {
             &NoProgress,
         )
         .expect("rig");
-        match run_peer(&data, true, 1) {
+        match run_peer(
+            &data,
+            Some(&data.join("camera/corners/opencv_stereo.json")),
+            1,
+        ) {
             Ok(peer) => {
                 report("same corners (OpenCV's detections)", &rig, &peer, &l, &r);
                 // The same problem as OpenCV's `stereoCalibrate(CALIB_FIX_INTRINSIC)`: its
@@ -434,7 +434,7 @@ fn main() {
     }
     let ours_ms = median(times);
     let Some((rig, l, r)) = last else { return };
-    match run_peer(&data, false, runs) {
+    match run_peer(&data, None, runs) {
         Ok(peer) => {
             report("end to end (each side detects)", &rig, &peer, &l, &r);
             println!(
@@ -444,5 +444,57 @@ fn main() {
             );
         }
         Err(e) => println!("peer failed: {e}"),
+    }
+
+    // 3. Our corners through OpenCV's solver: separates the corners' share of the difference
+    // from the solvers'.
+    let names = |files: &[PathBuf]| -> Vec<String> {
+        files
+            .iter()
+            .map(|p| {
+                p.file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default()
+            })
+            .collect()
+    };
+    let side = |views: &[Option<ViewObservations>], files: &[String]| {
+        let m: serde_json::Map<String, Value> = files
+            .iter()
+            .zip(views)
+            .map(|(n, v)| {
+                let dense = v.as_ref().and_then(|v| {
+                    (v.corners.len() == BOARD.num_corners()).then(|| {
+                        let mut c = v.corners.clone();
+                        c.sort_by_key(|c| c.index);
+                        Value::from(
+                            c.iter()
+                                .map(|c| vec![c.pixel[0], c.pixel[1]])
+                                .collect::<Vec<_>>(),
+                        )
+                    })
+                });
+                (n.clone(), dense.unwrap_or(Value::Null))
+            })
+            .collect();
+        Value::Object(m)
+    };
+    let file = std::env::temp_dir().join(format!(
+        "caliper-stereo-corners-{}.json",
+        std::process::id()
+    ));
+    let json = serde_json::json!({"corners": {"left": side(&l, &names(&lf)), "right": side(&r, &names(&rf))}});
+    if std::fs::write(&file, json.to_string()).is_ok() {
+        match run_peer(&data, Some(&file), 1) {
+            Ok(peer) => report(
+                "our corners, OpenCV's solver (mono calibrations + stereoCalibrate FIX_INTRINSIC) vs our default",
+                &rig,
+                &peer,
+                &l,
+                &r,
+            ),
+            Err(e) => println!("peer failed: {e}"),
+        }
+        std::fs::remove_file(&file).ok();
     }
 }

@@ -147,17 +147,24 @@ pub fn kalibr_imu_yaml(doc: &Value) -> Result<String, ExportError> {
         .map_err(|e| ExportError::Unavailable(e.to_string()))
 }
 
-/// The rig document's exports: OpenCV stereo YAML (two cameras), ROS `CameraInfo` with
-/// rectification for the first cameras, Kalibr's camchain for every camera, and JSON.
+/// The rig document's exports: OpenCV stereo YAML of camera 0 with camera 1 (`opencv-yaml`),
+/// 2 or 3, ROS `CameraInfo` with rectification for the first cameras, Kalibr's camchain for
+/// every camera, and JSON.
 pub const RIG_EXPORTS: &[Export] = &[
     Export {
         format: "opencv-yaml",
         media_type: caliper_core::export::YAML_MEDIA_TYPE,
-        render: |d| {
-            let rig = rig_of(d)?;
-            caliper_core::export::rig_opencv_stereo_yaml(&rig, d["created_at"].as_str())
-                .map_err(|e| ExportError::Unavailable(e.to_string()))
-        },
+        render: |d| rig_opencv(d, 1),
+    },
+    Export {
+        format: "opencv-yaml-cam2",
+        media_type: caliper_core::export::YAML_MEDIA_TYPE,
+        render: |d| rig_opencv(d, 2),
+    },
+    Export {
+        format: "opencv-yaml-cam3",
+        media_type: caliper_core::export::YAML_MEDIA_TYPE,
+        render: |d| rig_opencv(d, 3),
     },
     Export {
         format: "ros-yaml-cam0",
@@ -206,6 +213,13 @@ pub const RIG_EXPORTS: &[Export] = &[
 fn rig_of(doc: &Value) -> Result<caliper_core::rig::RigCalibration, ExportError> {
     serde_json::from_value(doc["parameters"]["rig"].clone())
         .map_err(|e| ExportError::Corrupt(e.to_string()))
+}
+
+/// OpenCV stereo YAML of camera 0 with camera `second`.
+fn rig_opencv(d: &Value, second: usize) -> Result<String, ExportError> {
+    let rig = rig_of(d)?;
+    caliper_core::export::rig_opencv_stereo_yaml(&rig, second, d["created_at"].as_str())
+        .map_err(|e| ExportError::Unavailable(e.to_string()))
 }
 
 fn rig_ros(doc: &Value, index: usize) -> Result<String, ExportError> {

@@ -162,6 +162,8 @@ async fn stereo_zip_recovers_the_known_rig_and_exports() {
     );
     let r = get("ros-yaml-cam2").await.expect("get");
     assert_eq!(r.status().as_u16(), 400, "a stereo rig has no camera 2");
+    let r = get("opencv-yaml-cam2").await.expect("get");
+    assert_eq!(r.status().as_u16(), 400, "a stereo rig has no pair 0-2");
     // Kalibr's radtan has no k3: the default solve frees k3, so ask for a Kalibr-ready solve.
     let body = json!({"kind": "rig_calibration", "dataset": ds, "device": "rig-1", "sensor": "stereo-kalibr",
                       "params": {"board": {"cols": 9, "rows": 6, "square": 0.025}, "options": {"camera": {"fix_k3": true}}}});

@@ -15,7 +15,7 @@ use super::charuco::{CharucoBoard, charuco_corners};
 use super::chessboard::{DetectOptions, detect_chessboard};
 use super::circles::{CircleGrid, CirclesDetection, detect_circles};
 use super::filter::gaussian_blur_gray;
-use super::markers::{Dictionary, detect_markers};
+use super::markers::{Dictionary, detect_markers, predict_missing};
 use crate::calib::{CornerObservation, ViewObservations};
 use crate::error::{CoreError, CoreResult};
 use crate::io::Gray;
@@ -384,7 +384,8 @@ impl TargetDetection {
 ///
 /// Chessboards go to [`detect_chessboard`] and circle grids to [`detect_circles`] (all
 /// corners or none; circle centres corrected for perspective). ChArUco boards and
-/// AprilGrids yield every corner next to a decoded marker, so partial views count. Never
+/// AprilGrids yield every corner next to a decoded marker, or next to a marker placed by
+/// decoded ones nearby (too small or blurred to read), so partial views count. Never
 /// fails: an invalid spec, invalid options or an image without the target give no corners and
 /// a `reason`.
 pub fn detect_target(img: &Gray, spec: &TargetSpec, opts: &TargetOptions) -> TargetDetection {
@@ -477,10 +478,30 @@ pub fn detect_target(img: &Gray, spec: &TargetSpec, opts: &TargetOptions) -> Tar
             ..TargetDetection::default()
         };
     }
+    // Markers the decoder missed (tiny far-side cells on a tilted board) are placed by their
+    // decoded neighbours; their corners must pass the same fit and colour checks.
+    let predicted = match &layout {
+        Layout::Charuco(b) => predict_missing(
+            &mine,
+            num_ids,
+            |id| b.marker_outline(id),
+            b.prediction_reach(),
+            (w, h),
+        ),
+        Layout::Aprilgrid(g) => predict_missing(
+            &mine,
+            num_ids,
+            |t| g.tag_outline(t),
+            g.prediction_reach(),
+            (w, h),
+        ),
+        Layout::Chessboard(..) | Layout::Circles(..) => Vec::new(),
+    };
+    let placed: Vec<_> = mine.iter().cloned().chain(predicted).collect();
     let s = gaussian_blur_gray(img, opts.sigma);
     let (corners, rejected) = match &layout {
-        Layout::Charuco(b) => charuco_corners(&s, b, &mine, opts.min_contrast),
-        Layout::Aprilgrid(g) => aprilgrid_corners(&s, g, &mine, opts.min_contrast),
+        Layout::Charuco(b) => charuco_corners(&s, b, &placed, opts.min_contrast),
+        Layout::Aprilgrid(g) => aprilgrid_corners(&s, g, &placed, opts.min_contrast),
         Layout::Chessboard(..) | Layout::Circles(..) => (Vec::new(), 0),
     };
     if rejected > 0 {

@@ -44,19 +44,31 @@ fn k(c: &Camera) -> Vec<f64> {
     vec![p[0], 0.0, p[2], 0.0, p[1], p[3], 0.0, 0.0, 1.0]
 }
 
-/// OpenCV stereo YAML of a two-camera rig.
-pub fn rig_opencv_stereo_yaml(rig: &RigCalibration, time: Option<&str>) -> CoreResult<String> {
-    if rig.cameras.len() != 2 || rig.pairs.len() != 1 {
+/// OpenCV stereo YAML of the pair of camera 0 and camera `second` (1 for a stereo rig): `M1
+/// D1` are camera 0's, `M2 D2` camera `second`'s, and `R T E F R1 R2 P1 P2 Q` the pair's, as
+/// `stereoCalibrate` and `stereoRectify` name them. A rig of more cameras has one such file per
+/// camera beyond the first, each rectified with camera 0.
+pub fn rig_opencv_stereo_yaml(
+    rig: &RigCalibration,
+    second: usize,
+    time: Option<&str>,
+) -> CoreResult<String> {
+    let Some(pair) = rig.pairs.iter().find(|p| p.a == 0 && p.b == second) else {
         return Err(CoreError::param(
             "format",
             format!(
-                "OpenCV's stereo YAML describes one pair; this rig has {} cameras: export \
-                 kalibr-yaml (every camera) or json",
+                "OpenCV's stereo YAML describes camera 0 with one other camera; this rig has {} \
+                 cameras, so camera {second} is not one of them: export kalibr-yaml (every \
+                 camera) or json",
                 rig.cameras.len()
             ),
         ));
-    }
-    let (a, b) = (&rig.cameras[0], &rig.cameras[1]);
+    };
+    let (Some(a), Some(b)) = (rig.cameras.first(), rig.cameras.get(second)) else {
+        return Err(CoreError::input(
+            "rig document: a pair names a missing camera",
+        ));
+    };
     let (da, fa) = opencv_distortion(&a.camera, &a.name)?;
     let (db, fb) = opencv_distortion(&b.camera, &b.name)?;
     if fa != fb {
@@ -65,7 +77,6 @@ pub fn rig_opencv_stereo_yaml(rig: &RigCalibration, time: Option<&str>) -> CoreR
             "OpenCV's stereo functions take two pinhole or two fisheye cameras, not one of each",
         ));
     }
-    let pair = &rig.pairs[0];
     let r = &pair.rectification;
     let num = |v: f64| fmt_f64(v, NanStyle::OpenCv);
     let strs = |v: &[f64]| v.iter().map(|x| num(*x)).collect::<Vec<_>>();
@@ -101,7 +112,7 @@ pub fn rig_opencv_stereo_yaml(rig: &RigCalibration, time: Option<&str>) -> CoreR
         "rms: {}\nepipolar_rms: {}\nbaseline: {}\n",
         num(rig.rms),
         num(pair.epipolar_rms_px),
-        num(rig.extrinsics[1].baseline)
+        num(rig.extrinsics.get(second).map_or(f64::NAN, |e| e.baseline))
     ));
     Ok(out)
 }

@@ -281,14 +281,60 @@ fn to_gray(img: DynamicImage, format: ImageFormat) -> Vec<u8> {
 ///   `((9797 R + 19234 G + 3737 B + 16384) >> 15) >> 8` for 16-bit samples (exact match).
 /// - TIFF colour: `(4899 R + 9617 G + 1868 B + 8192) >> 14` (exact match for 8-bit; 16-bit
 ///   samples are reduced with `>> 8` first, which can differ from OpenCV by one level).
-/// - JPEG colour: libjpeg hands OpenCV the decoded luma plane directly; the `image` crate
-///   decodes to RGB, so we apply the BT.601 formula above to it. The result is within a few
-///   levels of OpenCV's (chroma upsampling and rounding differ), not bit-identical.
+/// - JPEG colour (YCbCr): as libjpeg does for OpenCV, the luma plane is decoded and the
+///   chroma planes are never touched, so colour fringes (lateral chromatic aberration,
+///   half-resolution chroma upsampled across an edge, clipping of the RGB reconstruction) cannot
+///   move an edge. The IDCT is zune-jpeg's, not libjpeg's: values can differ by a level.
+///   Other colour JPEGs (Adobe RGB or CMYK) are decoded to RGB and converted as above.
 pub fn decode_gray8(bytes: &[u8], limits: &ImageLimits) -> CoreResult<Gray> {
+    let (format, decoder) = open_decoder(Cursor::new(bytes), limits)?;
+    if format == ImageFormat::Jpeg && decoder.color_type().channel_count() >= 3 {
+        drop(decoder);
+        if !jpeg_has_end_marker(bytes) {
+            return Err(truncated_jpeg());
+        }
+        if let Some(g) = jpeg_luma(bytes, limits)? {
+            return Ok(g);
+        }
+    }
     let (img, format) = decode_image(bytes, limits)?;
     let (width, height) = (img.width(), img.height());
     let data = to_gray(img, format);
     Gray::new(width, height, data)
+}
+
+/// The decoded luma plane of a YCbCr JPEG (`None` for other colour spaces). The header has
+/// been checked against `limits` by the caller; the decoder gets the same bounds.
+fn jpeg_luma(bytes: &[u8], limits: &ImageLimits) -> CoreResult<Option<Gray>> {
+    use zune_core::bytestream::ZCursor;
+    use zune_core::colorspace::ColorSpace;
+    use zune_core::options::DecoderOptions;
+    let side = |v: u32| usize::try_from(v).unwrap_or(usize::MAX);
+    let opts = DecoderOptions::default()
+        .set_max_width(side(limits.max_width))
+        .set_max_height(side(limits.max_height))
+        .jpeg_set_out_colorspace(ColorSpace::Luma);
+    let mut dec = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(bytes), opts);
+    dec.decode_headers()
+        .map_err(|e| CoreError::input(format!("cannot read image header: {e}")))?;
+    if dec.input_colorspace() != Some(ColorSpace::YCbCr) {
+        return Ok(None);
+    }
+    let data = dec
+        .decode()
+        .map_err(|e| CoreError::input(format!("cannot decode image: {e}")))?;
+    let (w, h) = dec
+        .dimensions()
+        .ok_or_else(|| CoreError::input("cannot decode image: no dimensions"))?;
+    let (w, h) = (
+        u32::try_from(w).map_err(|_| CoreError::input("image too wide"))?,
+        u32::try_from(h).map_err(|_| CoreError::input("image too tall"))?,
+    );
+    Gray::new(w, h, data).map(Some)
+}
+
+fn truncated_jpeg() -> CoreError {
+    CoreError::input("truncated JPEG: the file does not end with an end-of-image marker")
 }
 
 /// Decode PNG, JPEG or TIFF bytes keeping their pixel format (bit depth and channels), with the
@@ -297,9 +343,7 @@ pub fn decode_gray8(bytes: &[u8], limits: &ImageLimits) -> CoreResult<Gray> {
 pub fn decode_image(bytes: &[u8], limits: &ImageLimits) -> CoreResult<(DynamicImage, ImageFormat)> {
     let (format, decoder) = open_decoder(Cursor::new(bytes), limits)?;
     if format == ImageFormat::Jpeg && !jpeg_has_end_marker(bytes) {
-        return Err(CoreError::input(
-            "truncated JPEG: the file does not end with an end-of-image marker",
-        ));
+        return Err(truncated_jpeg());
     }
     let img =
         DynamicImage::from_decoder(decoder).map_err(|e| image_err("cannot decode image", e))?;

@@ -178,3 +178,70 @@ fn gray_new_checks_length() {
     assert!(Gray::new(2, 2, vec![0; 4]).is_ok());
     assert!(Gray::new(2, 2, vec![0; 3]).is_err());
 }
+
+/// A colour JPEG of a chessboard edge with lateral chromatic aberration (red and blue fringes
+/// a pixel either side): our grey is OpenCV's luma plane to within one level (the IDCTs
+/// differ), where converting the decoded RGB strays further. Runs with `CALIPER_PYTHON`.
+#[test]
+fn colour_jpeg_grey_is_the_luma_plane_like_opencv() {
+    let (w, h) = (96u32, 64u32);
+    let mut rgb = Vec::with_capacity((w * h * 3) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let edge = |dx: f64| {
+                let u = f64::from(x) + dx - 0.37 * f64::from(y) - 30.0;
+                let t = (u / 0.6).tanh() * 0.5 + 0.5;
+                (5.0 + 245.0 * t).round() as u8
+            };
+            rgb.extend([edge(2.5), edge(0.0), edge(-2.5)]);
+        }
+    }
+    let mut jpg = Vec::new();
+    JpegEncoder::new_with_quality(&mut jpg, 85)
+        .write_image(&rgb, w, h, ExtendedColorType::Rgb8)
+        .unwrap();
+    let ours = decode_gray8(&jpg, &ImageLimits::default()).unwrap();
+    assert_eq!((ours.width, ours.height), (w, h));
+    let Some(py) = crate::test_env::python("cv2,numpy") else {
+        return;
+    };
+    let dir = std::env::temp_dir().join(format!("caliper-jpeg-luma-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("fringe.jpg");
+    std::fs::write(&path, &jpg).unwrap();
+    let out = std::process::Command::new(py)
+        .args([
+            "-c",
+            "import cv2,sys; g=cv2.imread(sys.argv[1], cv2.IMREAD_GRAYSCALE); \
+             print(' '.join(str(int(v)) for v in g.ravel()))",
+            path.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    std::fs::remove_dir_all(&dir).ok();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let cv: Vec<i32> = String::from_utf8_lossy(&out.stdout)
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    assert_eq!(cv.len(), ours.data.len());
+    let diff = |g: &[u8]| {
+        g.iter()
+            .zip(&cv)
+            .map(|(&a, &b)| (i32::from(a) - b).abs())
+            .max()
+            .unwrap_or(0)
+    };
+    let (img, format) = decode_image(&jpg, &ImageLimits::default()).unwrap();
+    let via_rgb = to_gray(img, format);
+    eprintln!(
+        "max |ours − OpenCV| {}, via RGB {}",
+        diff(&ours.data),
+        diff(&via_rgb)
+    );
+    assert!(diff(&ours.data) <= 1, "luma plane differs from OpenCV's");
+}

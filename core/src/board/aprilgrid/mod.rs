@@ -68,6 +68,28 @@ impl AprilGrid {
         [base, base + 1, base + gc + 1, base + gc]
     }
 
+    /// Board corners of tag `t` in the order of [`Marker::corners`] (OpenCV's top-left,
+    /// top-right, bottom-right, bottom-left of the upright code, which are Kalibr's
+    /// bottom-right, bottom-left, top-left, top-right).
+    pub fn tag_outline(&self, t: usize) -> Option<[[f64; 2]; 4]> {
+        if t >= self.tag_rows * self.tag_cols {
+            return None;
+        }
+        let ids = self.tag_corner_ids(t);
+        Some([
+            self.corner_position(ids[1])?,
+            self.corner_position(ids[0])?,
+            self.corner_position(ids[3])?,
+            self.corner_position(ids[2])?,
+        ])
+    }
+
+    /// How far (board units) a missing tag may be from the decoded ones that place it: two
+    /// tags along a row and diagonally.
+    pub(crate) fn prediction_reach(&self) -> f64 {
+        2.9 * (1.0 + self.tag_spacing) * self.tag_size
+    }
+
     /// Colour of the printed board at board point `(x, y)` (y up): `Some(true)` black,
     /// `Some(false)` white, `None` outside the pattern (tags and corner squares).
     pub fn is_black(&self, x: f64, y: f64) -> Option<bool> {
@@ -113,8 +135,10 @@ pub(crate) fn aprilgrid_corners(
     let mut rejected = 0;
     let pure = grid.tag_spacing.min(0.2);
     for tag in tags {
+        // Corners of a predicted tag failing their checks are expected (occluded, blank).
+        let counts = usize::from(!tag.is_predicted());
         let Some(map) = SquareMap::new(&tag.corners) else {
-            rejected += 4;
+            rejected += 4 * counts;
             continue;
         };
         let c = &tag.corners;
@@ -122,7 +146,10 @@ pub(crate) fn aprilgrid_corners(
             .map(|k| (c[k][0] - c[(k + 1) % 4][0]).hypot(c[k][1] - c[(k + 1) % 4][1]))
             .fold(f64::MAX, f64::min);
         let r0 = ((0.9 * pure * side).round() as i32).clamp(2, 8);
-        let max_shift = (0.1 * side).max(1.5);
+        // The outline's corner can sit a few pixels off the junction: at a steep tilt the small
+        // square touching it merges with the border; the nearest other junction is a spacing
+        // square (≥ 0.3 side along the board) away, and the colour check below rejects it.
+        let max_shift = (0.2 * side).max(1.5);
         // OpenCV's top-left, top-right, bottom-right, bottom-left are Kalibr's bottom-right,
         // bottom-left, top-left, top-right.
         let ids = grid.tag_corner_ids(tag.id);
@@ -139,7 +166,7 @@ pub(crate) fn aprilgrid_corners(
                 }
             }
             let Some(p) = done else {
-                rejected += 1;
+                rejected += counts;
                 continue;
             };
             // Colours: inside the tag and the spacing square dark, the two gaps bright.
@@ -170,7 +197,7 @@ pub(crate) fn aprilgrid_corners(
             if ok {
                 out.push((kalibr[k], p));
             } else {
-                rejected += 1;
+                rejected += counts;
             }
         }
     }

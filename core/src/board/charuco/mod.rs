@@ -62,6 +62,22 @@ impl CharucoBoard {
             .nth(id)
     }
 
+    /// Board corners of marker `id` (top-left, top-right, bottom-right, bottom-left as
+    /// printed: the order of [`Marker::corners`]).
+    pub fn marker_outline(&self, id: usize) -> Option<[[f64; 2]; 4]> {
+        let (i, j) = self.marker_square(id)?;
+        let d = 0.5 * (self.square - self.marker);
+        let (x, y) = (i as f64 * self.square + d, j as f64 * self.square + d);
+        let m = self.marker;
+        Some([[x, y], [x + m, y], [x + m, y + m], [x, y + m]])
+    }
+
+    /// How far (board units) a missing marker may be from the decoded ones that place it: two
+    /// squares along a row and diagonally.
+    pub(crate) fn prediction_reach(&self) -> f64 {
+        2.9 * self.square
+    }
+
     /// Id of the marker in white square `(i, j)`: the white squares before it, row-major.
     fn marker_id(&self, i: usize, j: usize) -> usize {
         // In a row starting with a black square the white ones are the odd columns.
@@ -136,12 +152,15 @@ pub(crate) fn charuco_corners(
     let d = 0.5 * (board.square - board.marker);
     // Per corner: sum of predictions, count, smallest square size in pixels, a marker map
     // and the marker's square, for the colour check.
+    #[derive(Clone)]
     struct Acc {
         sum: [f64; 2],
         preds: Vec<[f64; 2]>,
         spacing: f64,
         map: SquareMap,
         origin: [f64; 2],
+        /// A decoded (not predicted) marker is next to it: only then is a rejection news.
+        read: bool,
     }
     let mut acc: std::collections::BTreeMap<usize, Acc> = Default::default();
     for m in markers {
@@ -169,13 +188,23 @@ pub(crate) fn charuco_corners(
             let sp = (px[0] - p[0])
                 .hypot(px[1] - p[1])
                 .min((py[0] - p[0]).hypot(py[1] - p[1]));
-            let e = acc.entry(id).or_insert(Acc {
+            let fresh = Acc {
                 sum: [0.0; 2],
                 preds: Vec::new(),
                 spacing: f64::MAX,
                 map,
                 origin,
-            });
+                read: !m.is_predicted(),
+            };
+            let e = acc.entry(id).or_insert_with(|| fresh.clone());
+            // A corner next to a decoded marker is placed by decoded markers only: a placed
+            // neighbour's outline is less exact and must not veto it through the spread check.
+            if e.read && m.is_predicted() {
+                continue;
+            }
+            if !e.read && !m.is_predicted() {
+                *e = fresh;
+            }
             e.sum = [e.sum[0] + p[0], e.sum[1] + p[1]];
             e.preds.push(p);
             e.spacing = e.spacing.min(sp);
@@ -193,7 +222,7 @@ pub(crate) fn charuco_corners(
             .map(|p| (p[0] - pred[0]).hypot(p[1] - pred[1]))
             .fold(0.0, f64::max);
         if spread > 0.2 * a.spacing || a.spacing < 4.0 {
-            rejected += 1;
+            rejected += usize::from(a.read);
             continue;
         }
         let margin_px = a.spacing * d / board.square;
@@ -208,7 +237,7 @@ pub(crate) fn charuco_corners(
             }
         }
         let Some(p) = done else {
-            rejected += 1;
+            rejected += usize::from(a.read);
             continue;
         };
         // Colours: the squares around the corner, sampled inside the white margin.
@@ -247,7 +276,7 @@ pub(crate) fn charuco_corners(
             }
         }
         if !inside || bright - dark < 0.5 * min_contrast {
-            rejected += 1;
+            rejected += usize::from(a.read);
             continue;
         }
         out.push((id, p));

@@ -22,8 +22,16 @@ pub struct Marker {
     /// Pixel corners of the outer black border, in the marker's own order (OpenCV's): its
     /// top-left, top-right, bottom-right, bottom-left as printed.
     pub corners: [[f64; 2]; 4],
-    /// Bits corrected by the dictionary's error correction.
+    /// Bits corrected by the dictionary's error correction; `u32::MAX` for a marker that was
+    /// not read but placed by its neighbours (see `predict_missing`).
     pub bit_errors: u32,
+}
+
+impl Marker {
+    /// Whether the marker was placed by its decoded neighbours rather than read.
+    pub fn is_predicted(&self) -> bool {
+        self.bit_errors == u32::MAX
+    }
 }
 
 /// Everything [`detect_markers`] saw in one image.

@@ -15,10 +15,12 @@ mod decode;
 #[rustfmt::skip]
 #[allow(clippy::unreadable_literal)]
 mod dict_data;
+mod predict;
 mod quads;
 
 pub(crate) use decode::SquareMap;
 pub use decode::{Marker, MarkerScan, detect_markers};
+pub(crate) use predict::predict_missing;
 
 /// A marker dictionary: `bits × bits` codes, and how many bit errors a read may correct.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
