@@ -5,6 +5,8 @@
 //! the same images can be handed to OpenCV's `cornerSubPix` for comparison.
 //!
 //! `cargo run --release -p caliper-core --example corner_bias -- OUT_DIR [SEED] [JPEG_QUALITY]`
+//! (`CB_Z0`: nearest board distance, default 0.22 m; `CB_LIGHT`: illumination ramp across the
+//! image, as `RenderOptions::light_gradient`)
 
 use caliper_core::board::{DetectOptions, Detection, detect_chessboard};
 use caliper_core::camera::{Camera, PinholeRadTan};
@@ -58,6 +60,10 @@ fn main() {
             blur_sigma: 0.6,
             noise_sigma: 1.5,
             seed: seed * 100 + k,
+            light_gradient: std::env::var("CB_LIGHT")
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .unwrap_or(0.0),
             ..RenderOptions::default()
         };
         let Ok(view) = render_chessboard(&cam, &pose, (cols, rows, sq), (640, 480), &opts) else {
