@@ -6,7 +6,8 @@
 //!
 //! `cargo run --release -p caliper-core --example corner_bias -- OUT_DIR [SEED] [JPEG_QUALITY]`
 //! (`CB_Z0`: nearest board distance, default 0.22 m; `CB_LIGHT`: illumination ramp across the
-//! image, as `RenderOptions::light_gradient`)
+//! image, as `RenderOptions::light_gradient`; `CB_LIGHT_CORRECTION` set: detect with
+//! `DetectOptions::light_correction`)
 
 use caliper_core::board::{DetectOptions, Detection, detect_chessboard};
 use caliper_core::camera::{Camera, PinholeRadTan};
@@ -93,9 +94,15 @@ fn main() {
             serde_json::to_string(&truth).expect("json")
         ));
         k += 1;
-        if let Detection::Found { corners, .. } =
-            detect_chessboard(&gray, cols, rows, &DetectOptions::default())
-        {
+        if let Detection::Found { corners, .. } = detect_chessboard(
+            &gray,
+            cols,
+            rows,
+            &DetectOptions {
+                light_correction: std::env::var_os("CB_LIGHT_CORRECTION").is_some(),
+                ..DetectOptions::default()
+            },
+        ) {
             found += 1;
             // Same corner order or reversed (symmetric board).
             let d_same: f64 = corners

@@ -77,6 +77,19 @@ async fn synthetic_views_recover_the_known_camera_and_export() {
     let id = s.job(body).await;
     let done = s.wait_terminal(&id).await;
     assert_eq!(done["status"], "succeeded", "{done}");
+    // The same views with the light correction on: same camera.
+    let lit = json!({"kind": "camera_calibration", "dataset": ds, "device": "cam-7", "sensor": "cam0-lit",
+                     "params": {"board": {"cols": 9, "rows": 6, "square": 0.025},
+                                "detection": {"chessboard": {"light_correction": true}}}});
+    let lit_id = s.job(lit).await;
+    assert_eq!(s.wait_terminal(&lit_id).await["status"], "succeeded");
+    let (_, lit_doc) = s
+        .get_json("/v1/devices/cam-7/documents/cam0-lit/camera_calibration/latest")
+        .await;
+    let fx = lit_doc["parameters"]["camera"]["fx"]
+        .as_f64()
+        .unwrap_or(f64::NAN);
+    assert!((fx - TRUTH[0]).abs() < 0.002 * TRUTH[0], "{lit_doc}");
     let base = "/v1/devices/cam-7/documents/cam0/camera_calibration";
     let (st, doc) = s.get_json(&format!("{base}/latest")).await;
     assert_eq!(st, 200);
@@ -195,6 +208,18 @@ async fn too_few_boards_fail_with_a_clear_reason() {
         .await;
     assert_eq!(st, 422);
     assert_eq!(p["field"], "params.board");
+    let (st, p) = s
+        .post_json("/v1/jobs", &json!({"kind": "camera_calibration", "dataset": ds, "params": {"board": {"cols": 9, "rows": 6, "square": 1.0},
+                                                                                             "detection": {"chessboard": {"sigma": -1.0}}}}))
+        .await;
+    assert_eq!(st, 422, "{p}");
+    assert!(
+        p["field"]
+            .as_str()
+            .unwrap_or("")
+            .starts_with("params.detection"),
+        "{p}"
+    );
     s.stop().await;
 }
 

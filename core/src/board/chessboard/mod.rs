@@ -49,6 +49,7 @@
 
 mod candidates;
 mod grid;
+mod light;
 mod order;
 pub(crate) mod subpix;
 
@@ -84,6 +85,12 @@ pub struct DetectOptions {
     pub min_contrast: f64,
     /// Refine corners to sub-pixel accuracy (off: the candidate positions, ±1 px).
     pub refine: bool,
+    /// Measure uneven light (vignetting, a lamp to one side) on the board's white squares and
+    /// divide it out before the sub-pixel fit. Under a light ramp of 0.6 across a 640 px render
+    /// it keeps corners at 0.021 px from the truth where they drift to 0.046 px without it; on
+    /// the shared real sets it lowers the OpenCV stereo images' RMS (0.168 → 0.165, 0.172 →
+    /// 0.164 px) but raises the BoofCV fisheye set's (0.205 → 0.231 px), hence off by default.
+    pub light_correction: bool,
 }
 
 impl Default for DetectOptions {
@@ -95,6 +102,7 @@ impl Default for DetectOptions {
             max_seeds: 400,
             min_contrast: 8.0,
             refine: true,
+            light_correction: false,
         }
     }
 }
@@ -452,6 +460,31 @@ fn finish(
                         return not_found(format!(
                             "corner ({i}, {j}) of the grid could not be refined to a saddle point"
                         ));
+                    }
+                }
+            }
+        }
+        // Uneven light (vignetting, a lamp to one side) moves saddle points: measure it on the
+        // board's white squares and refine once more with it divided out.
+        let first = g.clone();
+        let field = if opts.light_correction {
+            light::LightField::fit(s, &first)
+        } else {
+            None
+        };
+        for j in 0..gh {
+            for i in 0..gw {
+                let Some(ramp) = field.as_ref().and_then(|f| f.ramp_local(first[j][i])) else {
+                    continue;
+                };
+                let d = spacing(&first, i, j);
+                let r0 = ((0.3 * d).round() as i32).clamp(2, 8);
+                for radius in (2..=r0).rev() {
+                    let f =
+                        fitters[radius as usize].get_or_insert_with(|| SaddleFitter::new(radius));
+                    if let Some(p) = f.refine_lit(s, first[j][i], (0.1 * d).max(0.5), ramp) {
+                        g[j][i] = p;
+                        break;
                     }
                 }
             }

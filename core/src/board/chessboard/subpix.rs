@@ -60,7 +60,7 @@ impl SaddleFitter {
 
     /// The quadratic's coefficients on the window centred at `c` (inside the image with a
     /// margin of `radius`).
-    fn fit(&self, s: &ImageF, c: [f64; 2]) -> [f64; 6] {
+    fn fit(&self, s: &ImageF, c: [f64; 2], ramp: Vector2<f64>) -> [f64; 6] {
         let rad = self.radius;
         let mut coef = [0.0f64; 6];
         let (xs, ys) = (c[0] - f64::from(rad), c[1] - f64::from(rad));
@@ -72,7 +72,8 @@ impl SaddleFitter {
             for dy in -rad..=rad {
                 let y = c[1] + f64::from(dy);
                 for dx in -rad..=rad {
-                    let v = f64::from(s.bilinear(c[0] + f64::from(dx), y));
+                    let v = f64::from(s.bilinear(c[0] + f64::from(dx), y))
+                        / light(ramp, f64::from(dx), f64::from(dy));
                     for (ci, oi) in coef.iter_mut().zip(&self.op[k]) {
                         *ci += oi * v;
                     }
@@ -91,10 +92,11 @@ impl SaddleFitter {
             let r0 = &s.data[(y0 + j) * w + x0..(y0 + j) * w + x0 + n + 1];
             let r1 = &s.data[(y0 + j + 1) * w + x0..(y0 + j + 1) * w + x0 + n + 1];
             let Some(ops_row) = ops.next() else { break };
+            let dy = j as f64 - f64::from(rad);
             for (i, o) in ops_row.iter().enumerate() {
                 let a = r0[i] + fx * (r0[i + 1] - r0[i]);
                 let b = r1[i] + fx * (r1[i + 1] - r1[i]);
-                let v = f64::from(a + fy * (b - a));
+                let v = f64::from(a + fy * (b - a)) / light(ramp, i as f64 - f64::from(rad), dy);
                 for (ci, oi) in coef.iter_mut().zip(o) {
                     *ci += oi * v;
                 }
@@ -107,13 +109,27 @@ impl SaddleFitter {
     /// the fitted quadratic is not a saddle, or the estimate moves more than `max_shift` pixels
     /// from `start`.
     pub fn refine(&self, s: &ImageF, start: [f64; 2], max_shift: f64) -> Option<[f64; 2]> {
+        self.refine_lit(s, start, max_shift, Vector2::zeros())
+    }
+
+    /// [`SaddleFitter::refine`] under a known relative light ramp `(g, h)` per pixel (the
+    /// image is `L₀(1 + g·x + h·y)` times the pattern near the corner): every sample of the
+    /// window is divided by the ramp before the fit, so the junction stays the fixed point under
+    /// uneven light.
+    pub fn refine_lit(
+        &self,
+        s: &ImageF,
+        start: [f64; 2],
+        max_shift: f64,
+        ramp: Vector2<f64>,
+    ) -> Option<[f64; 2]> {
         let r = f64::from(self.radius);
         let mut c = start;
         for _ in 0..20 {
             if !s.contains(c[0], c[1], r) {
                 return None;
             }
-            let coef = self.fit(s, c);
+            let coef = self.fit(s, c, ramp);
             let hess = Matrix2::new(2.0 * coef[3], coef[4], coef[4], 2.0 * coef[5]);
             let det = hess.determinant();
             // A saddle has eigenvalues of opposite signs.
@@ -138,4 +154,11 @@ impl SaddleFitter {
         }
         Some(c)
     }
+}
+
+/// The light ramp's factor `1 + g·dx + h·dy` at offset `(dx, dy)` from the window's centre
+/// (kept away from zero: a ramp is a few percent per pixel at most).
+#[inline]
+fn light(ramp: Vector2<f64>, dx: f64, dy: f64) -> f64 {
+    (1.0 + ramp.x * dx + ramp.y * dy).max(0.1)
 }

@@ -237,6 +237,47 @@ fn motion_blur_gaussian_blur_and_uneven_light() {
     }
 }
 
+/// Under a light ramp (×0.6 … ×1.4 across the image) the saddle points drift with the mean
+/// grey level times the ramp; `light_correction` measures the ramp on the white squares and
+/// divides it out.
+#[test]
+fn light_correction_keeps_corners_on_the_junction_under_a_light_ramp() {
+    let cam = pinhole();
+    let opts = RenderOptions {
+        light_gradient: 0.8,
+        white: 180.0,
+        noise_sigma: 0.5,
+        ..RenderOptions::default()
+    };
+    let lit = DetectOptions {
+        light_correction: true,
+        ..DetectOptions::default()
+    };
+    let (mut plain, mut fixed) = (Vec::new(), Vec::new());
+    for (k, (centre, dist, rot)) in pinhole_views()[..6].iter().enumerate() {
+        let pose = look_at(&cam, B96, *centre, *dist, *rot, false);
+        let ro = RenderOptions {
+            seed: 40 + k as u64,
+            ..opts.clone()
+        };
+        let v = render(&cam, &pose, B96, (640, 480), &ro);
+        for (o, out) in [
+            (DetectOptions::default(), &mut plain),
+            (lit.clone(), &mut fixed),
+        ] {
+            let Detection::Found { corners, .. } = detect_chessboard(&v.image, B96.0, B96.1, &o)
+            else {
+                panic!("view {k} not found");
+            };
+            out.extend(errors(&corners, &v.corners));
+        }
+    }
+    let rms = |e: &[f64]| (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt();
+    let (a, b) = (rms(&plain), rms(&fixed));
+    println!("light ramp: RMS {a:.4} px uncorrected, {b:.4} px corrected");
+    assert!(b < 0.75 * a && b < 0.04, "uncorrected {a}, corrected {b}");
+}
+
 #[test]
 fn no_board_partial_board_and_wrong_size_are_not_found() {
     let opts = DetectOptions::default();

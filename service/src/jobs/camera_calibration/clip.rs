@@ -4,7 +4,6 @@
 //! `clip` lists every searched frame with its index, time and why it was or was not used.
 
 use caliper_core::Progress;
-use caliper_core::board::TargetOptions;
 use caliper_core::calib::clip::{DEFAULT_MAX_CANDIDATES, clip_candidates};
 use caliper_core::calib::{
     MIN_VIEWS, PlanarTarget, ViewCandidate, ViewDecision, ViewObservations, ViewSelection,
@@ -115,7 +114,7 @@ pub(super) fn run_clip(
         clip.reader()?,
         &VideoLimits::default(),
         &board,
-        &TargetOptions::default(),
+        &p.detection,
         p.clip.max_candidates,
         progress,
     )?;

@@ -109,6 +109,10 @@ pub struct CameraCalibParams {
     /// For a video dataset: how many frames are searched and how views are chosen.
     #[serde(default)]
     pub clip: ClipParams,
+    /// Target detection settings, e.g. `{"chessboard": {"light_correction": true}}` to divide
+    /// out vignetting or side light measured on the board before the sub-pixel fit.
+    #[serde(default)]
+    pub detection: TargetOptions,
 }
 
 /// What happened to one image.
@@ -166,6 +170,9 @@ impl Kind for CameraCalibration {
 
     fn check(p: &mut CameraCalibParams) -> Result<(), ParamError> {
         check_board_or_target(p.board.as_ref(), p.target.as_ref())?;
+        p.detection
+            .validate()
+            .map_err(|e| ParamError::from_core("detection", e))?;
         p.options
             .validate(p.model)
             .map_err(|e| ParamError::from_core("", e))?;
@@ -207,7 +214,7 @@ impl Kind for CameraCalibration {
         let limits = ImageLimits::default();
         let total = input.files.len() as u64;
         let done = std::sync::atomic::AtomicU64::new(0);
-        let detect_opts = TargetOptions::default();
+        let detect_opts = p.detection.clone();
         let outcomes: Vec<Result<ImageOutcome, JobError>> = input
             .files
             .par_iter()
