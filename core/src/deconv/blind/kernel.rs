@@ -199,8 +199,8 @@ pub(super) fn recentre(k: &mut Vec<f64>, ks: usize) {
 mod tests {
     use super::*;
     use crate::deconv::ops::grad;
-    use crate::deconv::{PadLayout, Psf};
     use crate::deconv::tests::{blur_reflect, scene};
+    use crate::deconv::{PadLayout, Psf};
 
     /// With the sharp image as the latent, the kernel step must return the true kernel.
     #[test]

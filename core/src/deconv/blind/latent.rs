@@ -86,4 +86,3 @@ pub(super) fn l0_restore(
     }
     Ok(s)
 }
-

@@ -7,8 +7,6 @@ mod kernel;
 mod latent;
 
 use super::fft::Fft2;
-use kernel::{clean_kernel, kernel_step, recentre};
-use latent::{l0_restore, salient_threshold};
 use super::ops::grad;
 use super::psf::MAX_PSF_SIZE;
 use super::resample::resize;
@@ -17,6 +15,8 @@ use super::wiener::gradient_power;
 use super::{PadLayout, Plane, Psf};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
+use kernel::{clean_kernel, kernel_step, recentre};
+use latent::{l0_restore, salient_threshold};
 
 /// Parameters of [`blind_deconv`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -293,4 +293,3 @@ fn estimate_level(
     }
     Ok(kernel)
 }
-
