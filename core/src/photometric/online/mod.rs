@@ -13,6 +13,8 @@
 //!    1 and `f(0.5) = gamma_gauge` (default 0.5, i.e. `f⁻¹(0.5) = 0.5`), so results are unique
 //!    and repeatable; with `gamma_gauge: null` the value is chosen from the data ([`gauge`]).
 
+#[cfg(test)]
+mod diag_tests;
 mod gauge;
 pub(crate) mod klt;
 
@@ -25,7 +27,7 @@ use super::vignette::VignetteModel;
 use super::{FitDiagnostics, PHOTOMETRIC_SCHEMA, PhotoImage, PhotometricModel, check_stack};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
-use klt::{KltConfig, Pyramid, min_eigen, track};
+use klt::{KltConfig, Pyramid, min_eigen, patch, refine_to_template, track};
 
 /// Parameters of [`photometric_online`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -160,6 +162,8 @@ struct Track {
     id: usize,
     pos: [f32; 2],
     vel: [f32; 2],
+    /// Level-0 patch where the track was detected.
+    tmpl: Vec<f32>,
 }
 
 /// Calibrate response, vignetting and exposures from an auto-exposure video.
@@ -180,6 +184,8 @@ pub(crate) struct Observations {
     pub n_points: u32,
     pub used_tracks: usize,
     pub mean_len: f64,
+    /// Image position of each observation (same order as `obs`).
+    pub pos: Vec<[f32; 2]>,
 }
 
 /// Track features through the video and sample them.
@@ -207,11 +213,13 @@ pub(crate) fn observe(
         )
     };
     let border = (params.half_window + 3) as f32;
+    let ref_tmpl = std::env::var_os("PHOTO_REFTMPL").is_some();
     let cell = (((w * h) as f64 / params.max_features as f64)
         .sqrt()
         .max(4.0)) as usize;
     let n_off = params.samples_per_track;
     let mut obs: Vec<Obs> = Vec::new();
+    let mut pos: Vec<[f32; 2]> = Vec::new();
     let mut tracks: Vec<Track> = Vec::new();
     let mut track_len: Vec<u32> = Vec::new();
     let mut prev: Option<Pyramid> = None;
@@ -226,12 +234,21 @@ pub(crate) fn observe(
                     .par_iter()
                     .map(|t| {
                         let guess = [t.pos[0] + t.vel[0], t.pos[1] + t.vel[1]];
-                        track(pp, &pyr, t.pos, guess, &cfg).filter(|q| {
-                            q[0] >= border
-                                && q[1] >= border
-                                && q[0] < w as f32 - border
-                                && q[1] < h as f32 - border
-                        })
+                        track(pp, &pyr, t.pos, guess, &cfg)
+                            .and_then(|q| {
+                                if !ref_tmpl {
+                                    return Some(q);
+                                }
+                                let (q2, rms) =
+                                    refine_to_template(&t.tmpl, &pyr, q, cfg.half_window, 10)?;
+                                (rms <= cfg.max_residual).then_some(q2)
+                            })
+                            .filter(|q| {
+                                q[0] >= border
+                                    && q[1] >= border
+                                    && q[0] < w as f32 - border
+                                    && q[1] < h as f32 - border
+                            })
                     })
                     .collect()
             };
@@ -242,6 +259,7 @@ pub(crate) fn observe(
                         id: t.id,
                         vel: [q[0] - t.pos[0], q[1] - t.pos[1]],
                         pos: q,
+                        tmpl: t.tmpl,
                     });
                 }
             }
@@ -271,11 +289,14 @@ pub(crate) fn observe(
                             }
                         }
                     }
-                    if let (_, Some(p)) = best {
+                    if let (_, Some(p)) = best
+                        && let Some(tmpl) = patch(&pyr, p, cfg.half_window)
+                    {
                         tracks.push(Track {
                             id: track_len.len(),
                             pos: p,
                             vel: [0.0; 2],
+                            tmpl,
                         });
                         track_len.push(0);
                     }
@@ -299,6 +320,7 @@ pub(crate) fn observe(
                     continue;
                 }
                 let g2 = (gx * gx + gy * gy) / (GRAD_HALF_WEIGHT * GRAD_HALF_WEIGHT);
+                pos.push([x, y]);
                 obs.push(Obs {
                     point: (t.id * n_off + o) as u32,
                     frame: k as u32,
@@ -322,7 +344,11 @@ pub(crate) fn observe(
         0.0
     };
     // Points with ≥ 2 observations, evenly subsampled, renumbered densely.
-    obs.sort_by_key(|o| (o.point, o.frame));
+    let mut order: Vec<u32> = (0..obs.len() as u32).collect();
+    order.sort_by_key(|&i| (obs[i as usize].point, obs[i as usize].frame));
+    let mut obs: Vec<Obs> = order.iter().map(|&i| obs[i as usize]).collect();
+    let mut pos: Vec<[f32; 2]> = order.iter().map(|&i| pos[i as usize]).collect();
+    drop(order);
     let n_raw = (track_len.len() * n_off) as u32;
     let mut count = vec![0u32; n_raw as usize];
     for o in &obs {
@@ -336,6 +362,8 @@ pub(crate) fn observe(
         remap[p as usize] = n_points;
         n_points += 1;
     }
+    let mut keep = obs.iter().map(|o| remap[o.point as usize] != u32::MAX);
+    pos.retain(|_| keep.next().unwrap_or(false));
     obs.retain_mut(|o| {
         let m = remap[o.point as usize];
         o.point = m;
@@ -353,11 +381,12 @@ pub(crate) fn observe(
         n_points,
         used_tracks,
         mean_len,
+        pos,
     })
 }
 
 /// Exposures, then the joint refinement, from the observations.
-fn fit(
+pub(crate) fn fit(
     nf: usize,
     w: usize,
     h: usize,
@@ -370,6 +399,7 @@ fn fit(
         n_points,
         used_tracks,
         mean_len,
+        ..
     } = seen;
     // Frame-to-frame exposure ratios under the mean response.
     let g0 = ResponseModel::default().inverse(4096);
