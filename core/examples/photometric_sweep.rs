@@ -222,6 +222,14 @@ fn score(
                 .map(|(f, t)| alpha * f.ln() - t.ln())
                 .collect();
             let mean = d.iter().sum::<f64>() / d.len().max(1) as f64;
+            if std::env::var_os("SWEEP_FRAMES").is_some() {
+                let per: Vec<String> = d
+                    .iter()
+                    .take(8)
+                    .map(|x| format!("{:+.1}%", 100.0 * (x - mean).exp_m1()))
+                    .collect();
+                println!("    first frames vs common scale: {}", per.join(" "));
+            }
             let exp_free = 100.0
                 * (d.iter().map(|x| (x - mean).exp_m1().powi(2)).sum::<f64>()
                     / d.len().max(1) as f64)

@@ -116,6 +116,13 @@ pub(crate) struct KltConfig {
     pub max_fb: f32,
 }
 
+/// Values this close to black or full scale are (or mix with) clipped pixels, which do not
+/// follow the gain-and-bias brightness model and would pull the match: they are left out.
+#[inline]
+fn clipped(v: f32) -> bool {
+    !(0.01..=0.985).contains(&v)
+}
+
 /// Track one point from `a` to `b` (level-0 coordinates); returns the new position.
 fn track_one(
     a: &Pyramid,
@@ -148,6 +155,7 @@ fn track_one(
             let mut hm = [[0.0f32; 4]; 4];
             let mut g = [0.0f32; 4];
             let mut ss = 0.0f32;
+            let mut used = 0usize;
             let mut k = 0;
             for dy in -hw..=hw {
                 for dx in -hw..=hw {
@@ -155,6 +163,10 @@ fn track_one(
                     let t = tmpl[k];
                     k += 1;
                     let [j, jx, jy] = lb.sample3(x, y)?;
+                    if clipped(t) || clipped(j) {
+                        continue;
+                    }
+                    used += 1;
                     let r = alpha * t + beta - j;
                     ss += r * r;
                     let jac = [jx, jy, -t, -1.0];
@@ -166,7 +178,10 @@ fn track_one(
                     }
                 }
             }
-            last_rms = (ss / npx as f32).sqrt();
+            if used < npx / 2 {
+                return None;
+            }
+            last_rms = (ss / used as f32).sqrt();
             let m = nalgebra::Matrix4::from_fn(|i, j| {
                 f64::from(hm[i.min(j)][i.max(j)]) + if i == j { 1e-9 } else { 0.0 }
             });
@@ -176,7 +191,7 @@ fn track_one(
             d[1] += (step[1] as f32) / s;
             alpha += step[2] as f32;
             beta += step[3] as f32;
-            if !(0.3..=3.0).contains(&alpha) {
+            if !(0.05..=20.0).contains(&alpha) {
                 return None;
             }
             if step[0].abs() + step[1].abs() < 0.02 {
@@ -237,4 +252,81 @@ pub(crate) fn min_eigen(l: &Level, r: usize) -> Vec<f32> {
         }
     }
     out
+}
+
+/// The level-0 patch around `p` (the reference template of a track).
+pub(crate) fn patch(a: &Pyramid, p: [f32; 2], hw: i32) -> Option<Vec<f32>> {
+    let l = &a.levels[0];
+    let mut out = Vec::with_capacity(((2 * hw + 1) * (2 * hw + 1)) as usize);
+    for dy in -hw..=hw {
+        for dx in -hw..=hw {
+            out.push(l.sample(&l.data, p[0] + dx as f32, p[1] + dy as f32)?);
+        }
+    }
+    Some(out)
+}
+
+/// Re-align a tracked position `q` in `b` to the track's reference template (the patch where it
+/// was detected) with the same gain-and-bias model, so that frame-to-frame errors do not add
+/// up to drift along the track (Shi & Tomasi, "Good Features to Track", CVPR 1994, check the
+/// feature against its first appearance). Returns the position and the patch RMS.
+pub(crate) fn refine_to_template(
+    tmpl: &[f32],
+    b: &Pyramid,
+    q: [f32; 2],
+    hw: i32,
+    iterations: usize,
+) -> Option<([f32; 2], f32)> {
+    let lb = &b.levels[0];
+    let npx = tmpl.len();
+    let mut d = [0.0f32; 2];
+    let (mut alpha, mut beta) = (1.0f32, 0.0f32);
+    let mut rms = f32::INFINITY;
+    for _ in 0..iterations {
+        let (qx, qy) = (q[0] + d[0], q[1] + d[1]);
+        let mut hm = [[0.0f32; 4]; 4];
+        let mut g = [0.0f32; 4];
+        let mut ss = 0.0f32;
+        let mut used = 0usize;
+        let mut k = 0;
+        for dy in -hw..=hw {
+            for dx in -hw..=hw {
+                let t = tmpl[k];
+                k += 1;
+                let [j, jx, jy] = lb.sample3(qx + dx as f32, qy + dy as f32)?;
+                if clipped(t) || clipped(j) {
+                    continue;
+                }
+                used += 1;
+                let r = alpha * t + beta - j;
+                ss += r * r;
+                let jac = [jx, jy, -t, -1.0];
+                for i in 0..4 {
+                    g[i] += jac[i] * r;
+                    for m in i..4 {
+                        hm[i][m] += jac[i] * jac[m];
+                    }
+                }
+            }
+        }
+        if used < npx / 2 {
+            return None;
+        }
+        rms = (ss / used as f32).sqrt();
+        let m = nalgebra::Matrix4::from_fn(|i, j| {
+            f64::from(hm[i.min(j)][i.max(j)]) + if i == j { 1e-9 } else { 0.0 }
+        });
+        let step = m.lu().solve(&nalgebra::Vector4::from(g.map(f64::from)))?;
+        d[0] += step[0] as f32;
+        d[1] += step[1] as f32;
+        alpha += step[2] as f32;
+        beta += step[3] as f32;
+        if !(0.05..=20.0).contains(&alpha) || d[0].abs() + d[1].abs() > 2.0 {
+            return None;
+        }
+        if step[0].abs() + step[1].abs() < 0.005 {
+            break;
+        }
+    }
+    Some(([q[0] + d[0], q[1] + d[1]], rms))
 }

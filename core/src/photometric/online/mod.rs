@@ -5,7 +5,12 @@
 //! 1. [`klt`]: gain-robust KLT tracks (Kim & Pollefeys 2008) on a pyramid, re-detecting
 //!    Shi-Tomasi corners on a grid when tracks are lost; every track contributes a few pixel
 //!    samples around its centre, weighted down where the image gradient is steep (where a
-//!    sub-pixel position error changes the value most).
+//!    sub-pixel position error changes the value most). Each frame-to-frame match is re-aligned
+//!    to the patch where the track was born, and clipped pixels are left out of the matching
+//!    and of the samples: frame-to-frame tracks drifted ~1 px over 70 frames on the issue-16
+//!    sweep, and that drift (not the renderer, the noise or the fit: with ground-truth
+//!    positions the fit recovers response/vignetting/exposures to 0.0002 / 0.0008 / 0.4 %, see
+//!    `diag_tests.rs`) was the main source of the bias.
 //! 2. Exposures: frame-to-frame log ratios from the tracks under the mean EMoR response
 //!    (a linear problem), then a Gauss-Newton pass on exposures and radiances only.
 //! 3. Joint Huber Levenberg-Marquardt over response (EMoR-4), vignetting (`v1..v3`),
@@ -13,6 +18,8 @@
 //!    1 and `f(0.5) = gamma_gauge` (default 0.5, i.e. `f⁻¹(0.5) = 0.5`), so results are unique
 //!    and repeatable; with `gamma_gauge: null` the value is chosen from the data ([`gauge`]).
 
+#[cfg(test)]
+mod diag_tests;
 mod gauge;
 pub(crate) mod klt;
 
@@ -25,7 +32,7 @@ use super::vignette::VignetteModel;
 use super::{FitDiagnostics, PHOTOMETRIC_SCHEMA, PhotoImage, PhotometricModel, check_stack};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
-use klt::{KltConfig, Pyramid, min_eigen, track};
+use klt::{KltConfig, Pyramid, min_eigen, patch, refine_to_template, track};
 
 /// Parameters of [`photometric_online`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -160,6 +167,8 @@ struct Track {
     id: usize,
     pos: [f32; 2],
     vel: [f32; 2],
+    /// Level-0 patch where the track was detected.
+    tmpl: Vec<f32>,
 }
 
 /// Calibrate response, vignetting and exposures from an auto-exposure video.
@@ -180,6 +189,9 @@ pub(crate) struct Observations {
     pub n_points: u32,
     pub used_tracks: usize,
     pub mean_len: f64,
+    /// Image position of each observation (same order as `obs`; read by the diagnostics).
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub pos: Vec<[f32; 2]>,
 }
 
 /// Track features through the video and sample them.
@@ -212,6 +224,7 @@ pub(crate) fn observe(
         .max(4.0)) as usize;
     let n_off = params.samples_per_track;
     let mut obs: Vec<Obs> = Vec::new();
+    let mut pos: Vec<[f32; 2]> = Vec::new();
     let mut tracks: Vec<Track> = Vec::new();
     let mut track_len: Vec<u32> = Vec::new();
     let mut prev: Option<Pyramid> = None;
@@ -226,12 +239,18 @@ pub(crate) fn observe(
                     .par_iter()
                     .map(|t| {
                         let guess = [t.pos[0] + t.vel[0], t.pos[1] + t.vel[1]];
-                        track(pp, &pyr, t.pos, guess, &cfg).filter(|q| {
-                            q[0] >= border
-                                && q[1] >= border
-                                && q[0] < w as f32 - border
-                                && q[1] < h as f32 - border
-                        })
+                        track(pp, &pyr, t.pos, guess, &cfg)
+                            .and_then(|q| {
+                                let (q2, rms) =
+                                    refine_to_template(&t.tmpl, &pyr, q, cfg.half_window, 10)?;
+                                (rms <= cfg.max_residual).then_some(q2)
+                            })
+                            .filter(|q| {
+                                q[0] >= border
+                                    && q[1] >= border
+                                    && q[0] < w as f32 - border
+                                    && q[1] < h as f32 - border
+                            })
                     })
                     .collect()
             };
@@ -242,6 +261,7 @@ pub(crate) fn observe(
                         id: t.id,
                         vel: [q[0] - t.pos[0], q[1] - t.pos[1]],
                         pos: q,
+                        tmpl: t.tmpl,
                     });
                 }
             }
@@ -271,11 +291,14 @@ pub(crate) fn observe(
                             }
                         }
                     }
-                    if let (_, Some(p)) = best {
+                    if let (_, Some(p)) = best
+                        && let Some(tmpl) = patch(&pyr, p, cfg.half_window)
+                    {
                         tracks.push(Track {
                             id: track_len.len(),
                             pos: p,
                             vel: [0.0; 2],
+                            tmpl,
                         });
                         track_len.push(0);
                     }
@@ -298,7 +321,18 @@ pub(crate) fn observe(
                 if f64::from(v) <= params.low_cut || f64::from(v) >= params.high_cut {
                     continue;
                 }
+                // A clipped pixel in the interpolation support biases the sample.
+                let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+                let i0 = y0 * w + x0;
+                if [i0, i0 + 1, i0 + w, i0 + w + 1].iter().any(|&i| {
+                    l0.data.get(i).is_none_or(|&d| {
+                        f64::from(d) <= params.low_cut || f64::from(d) >= params.high_cut
+                    })
+                }) {
+                    continue;
+                }
                 let g2 = (gx * gx + gy * gy) / (GRAD_HALF_WEIGHT * GRAD_HALF_WEIGHT);
+                pos.push([x, y]);
                 obs.push(Obs {
                     point: (t.id * n_off + o) as u32,
                     frame: k as u32,
@@ -322,7 +356,11 @@ pub(crate) fn observe(
         0.0
     };
     // Points with ≥ 2 observations, evenly subsampled, renumbered densely.
-    obs.sort_by_key(|o| (o.point, o.frame));
+    let mut order: Vec<u32> = (0..obs.len() as u32).collect();
+    order.sort_by_key(|&i| (obs[i as usize].point, obs[i as usize].frame));
+    let mut obs: Vec<Obs> = order.iter().map(|&i| obs[i as usize]).collect();
+    let mut pos: Vec<[f32; 2]> = order.iter().map(|&i| pos[i as usize]).collect();
+    drop(order);
     let n_raw = (track_len.len() * n_off) as u32;
     let mut count = vec![0u32; n_raw as usize];
     for o in &obs {
@@ -336,6 +374,8 @@ pub(crate) fn observe(
         remap[p as usize] = n_points;
         n_points += 1;
     }
+    let mut keep = obs.iter().map(|o| remap[o.point as usize] != u32::MAX);
+    pos.retain(|_| keep.next().unwrap_or(false));
     obs.retain_mut(|o| {
         let m = remap[o.point as usize];
         o.point = m;
@@ -353,11 +393,12 @@ pub(crate) fn observe(
         n_points,
         used_tracks,
         mean_len,
+        pos,
     })
 }
 
 /// Exposures, then the joint refinement, from the observations.
-fn fit(
+pub(crate) fn fit(
     nf: usize,
     w: usize,
     h: usize,
@@ -370,6 +411,7 @@ fn fit(
         n_points,
         used_tracks,
         mean_len,
+        ..
     } = seen;
     // Frame-to-frame exposure ratios under the mean response.
     let g0 = ResponseModel::default().inverse(4096);

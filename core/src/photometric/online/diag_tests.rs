@@ -1,0 +1,312 @@
+//! Diagnostics (ignored by default): the online fit fed with ground-truth observations, to tell
+//! errors of the observations (tracks, sampling, noise) from errors of the fit.
+//! `cargo test -p caliper-core --release --lib online::diag_tests -- --ignored --nocapture`
+
+use super::{Observations, OnlineParams, fit, observe};
+use crate::photometric::joint::Obs;
+use crate::photometric::metrics::{exposure_error_pct, gamma_align, vignette_rmse};
+use crate::photometric::response::interp_table;
+use crate::photometric::synth::{
+    AeVideo, ExposureProgram, Rng, SynthCamera, Texture, render_ae_video,
+};
+use crate::photometric::{ResponseModel, VignetteModel};
+
+struct NoProgress;
+impl crate::progress::Progress for NoProgress {
+    fn report(&self, _: &str, _: u64, _: u64) {}
+    fn is_canceled(&self) -> bool {
+        false
+    }
+}
+
+/// Frame `k`'s pose: pixel (relative to the centre) → world.
+fn pose(video: &AeVideo, k: usize) -> (f64, f64, f64, f64) {
+    let t = k as f64;
+    let (tx, ty) = (
+        200.0 + 2.0 * video.speed * t,
+        300.0 + 25.0 * (0.02 * video.speed * t).sin(),
+    );
+    let th = 0.15 * (0.013 * t).sin();
+    let sc = 1.0 + 0.15 * (0.017 * t).sin();
+    (th.cos() * sc, th.sin() * sc, tx, ty)
+}
+
+fn to_world(video: &AeVideo, w: f64, h: f64, k: usize, x: f64, y: f64) -> (f64, f64) {
+    let (c, s, tx, ty) = pose(video, k);
+    let (px, py) = (x - w / 2.0, y - h / 2.0);
+    (c * px - s * py + tx, s * px + c * py + ty)
+}
+
+fn to_image(video: &AeVideo, w: f64, h: f64, k: usize, u: f64, v: f64) -> (f64, f64) {
+    let (c, s, tx, ty) = pose(video, k);
+    let n = c * c + s * s;
+    let (du, dv) = (u - tx, v - ty);
+    (
+        w / 2.0 + (c * du + s * dv) / n,
+        h / 2.0 + (-s * du + c * dv) / n,
+    )
+}
+
+fn bilinear(im: &crate::photometric::PhotoImage, x: f64, y: f64) -> Option<f64> {
+    if !(0.0..(im.width - 1) as f64).contains(&x) || !(0.0..(im.height - 1) as f64).contains(&y) {
+        return None;
+    }
+    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+    Some(
+        (im.get(x0, y0) * (1.0 - fx) + im.get(x0 + 1, y0) * fx) * (1.0 - fy)
+            + (im.get(x0, y0 + 1) * (1.0 - fx) + im.get(x0 + 1, y0 + 1) * fx) * fy,
+    )
+}
+
+/// Track drift against the truth (from each point's first observation) and the observations
+/// re-sampled at the true positions.
+fn drift(
+    video: &AeVideo,
+    frames: &[crate::photometric::PhotoImage],
+    seen: &Observations,
+) -> Observations {
+    let (w, h) = (frames[0].width as f64, frames[0].height as f64);
+    let mut by_age: Vec<Vec<f64>> = vec![Vec::new(); 8];
+    let mut obs = Vec::new();
+    let mut first = (u32::MAX, 0.0, 0.0, 0usize);
+    for (o, p) in seen.obs.iter().zip(&seen.pos) {
+        if o.point != first.0 {
+            let (u, v) = to_world(
+                video,
+                w,
+                h,
+                o.frame as usize,
+                f64::from(p[0]),
+                f64::from(p[1]),
+            );
+            first = (o.point, u, v, o.frame as usize);
+        }
+        let (x, y) = to_image(video, w, h, o.frame as usize, first.1, first.2);
+        let d = ((x - f64::from(p[0])).powi(2) + (y - f64::from(p[1])).powi(2)).sqrt();
+        let age = (o.frame as usize - first.3) / 10;
+        by_age[age.min(7)].push(d);
+        if let Some(val) = bilinear(&frames[o.frame as usize], x, y)
+            && val > 3.0 / 255.0
+            && val < 250.0 / 255.0
+        {
+            obs.push(Obs {
+                value: val as f32,
+                ..*o
+            });
+        }
+    }
+    let txt: Vec<String> = by_age
+        .iter_mut()
+        .enumerate()
+        .map(|(i, v)| {
+            v.sort_by(f64::total_cmp);
+            let q = |f: f64| {
+                v.get((f * v.len() as f64) as usize)
+                    .copied()
+                    .unwrap_or(f64::NAN)
+            };
+            format!(
+                "age{}0: n {} med {:.3} p90 {:.3}",
+                i,
+                v.len(),
+                q(0.5),
+                q(0.9)
+            )
+        })
+        .collect();
+    eprintln!("   drift px: {}", txt.join(" | "));
+    Observations {
+        obs,
+        n_points: seen.n_points,
+        used_tracks: seen.used_tracks,
+        mean_len: seen.mean_len,
+        pos: Vec::new(),
+    }
+}
+
+#[derive(Clone, Copy, PartialEq, Debug)]
+enum Mode {
+    Ideal,
+    Exact,
+    Bilinear,
+}
+
+fn gt_obs(
+    cam: &SynthCamera,
+    video: &AeVideo,
+    exposures: &[f64],
+    frames: &[crate::photometric::PhotoImage],
+    mode: Mode,
+) -> Observations {
+    let tex = Texture::new(cam.seed, video.mid, video.stops);
+    let vm = cam.vignette_model();
+    let fwd = cam.response.forward_table();
+    let (w, h) = (cam.width as f64, cam.height as f64);
+    let mut rng = Rng::new(77);
+    let mut obs = Vec::new();
+    let mut np = 0u32;
+    let nf = exposures.len();
+    let span = 2.0 * video.speed * nf as f64;
+    for _ in 0..6000 {
+        let (u, v) = (
+            200.0 - w / 2.0 + (span + w) * rng.uniform(),
+            300.0 - h / 2.0 - 20.0 + (h + 40.0) * rng.uniform(),
+        );
+        let l = tex.radiance(u, v);
+        let mut n = 0;
+        for k in 0..nf {
+            let t = k as f64;
+            let (tx, ty) = (
+                200.0 + 2.0 * video.speed * t,
+                300.0 + 25.0 * (0.02 * video.speed * t).sin(),
+            );
+            let th = 0.15 * (0.013 * t).sin();
+            let sc = 1.0 + 0.15 * (0.017 * t).sin();
+            let (du, dv) = (u - tx, v - ty);
+            let (c, s) = (th.cos() / sc, th.sin() / sc);
+            let (x, y) = (w / 2.0 + c * du + s * dv, h / 2.0 - s * du + c * dv);
+            if !(2.0..w - 3.0).contains(&x) || !(2.0..h - 3.0).contains(&y) {
+                continue;
+            }
+            let e = 10.0 * exposures[k] * vm.eval(x, y) * l;
+            let val = match mode {
+                Mode::Ideal => interp_table(&fwd, e.clamp(0.0, 1.0)),
+                Mode::Exact => {
+                    let sigma = (cam.shot * e + cam.read * cam.read).sqrt();
+                    let e = (e + sigma * rng.normal()).clamp(0.0, 1.0);
+                    (interp_table(&fwd, e) * 255.0).round() / 255.0
+                }
+                Mode::Bilinear => {
+                    let im = &frames[k];
+                    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+                    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+                    (im.get(x0, y0) * (1.0 - fx) + im.get(x0 + 1, y0) * fx) * (1.0 - fy)
+                        + (im.get(x0, y0 + 1) * (1.0 - fx) + im.get(x0 + 1, y0 + 1) * fx) * fy
+                }
+            };
+            if val <= 3.0 / 255.0 || val >= 250.0 / 255.0 {
+                continue;
+            }
+            obs.push(Obs {
+                point: np,
+                frame: k as u32,
+                r2: vm.r2(x, y) as f32,
+                value: val as f32,
+                weight: 1.0,
+            });
+            n += 1;
+        }
+        if n >= 2 {
+            np += 1;
+        } else {
+            obs.truncate(obs.len() - n);
+        }
+    }
+    Observations {
+        obs,
+        n_points: np,
+        used_tracks: np as usize,
+        mean_len: 0.0,
+        pos: Vec::new(),
+    }
+}
+
+fn run(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3]) {
+    let (w, h, nf) = (320, 240, 200);
+    let cam = SynthCamera {
+        width: w,
+        height: h,
+        response,
+        vignette: vig,
+        shot: 2e-4,
+        read: 1.5e-3,
+        sixteen_bit: false,
+        seed: 3,
+    };
+    let seq = render_ae_video(&cam, nf, &video);
+    let truth_m = cam.response.forward(0.5).clamp(0.06, 0.94);
+    let truth_vig = cam.vignette_model().map();
+    let score = |name: &str, seen: Observations, gauge: Option<f64>| {
+        let p = OnlineParams {
+            gamma_gauge: gauge,
+            ..OnlineParams::default()
+        };
+        let nobs = seen.obs.len();
+        let r = fit(nf, w, h, seen, &p, &NoProgress).unwrap();
+        let fitinv = crate::photometric::InverseResponse {
+            values: r.model.inverse_256.clone(),
+        };
+        let (alpha, resp) = gamma_align(&fitinv, &cam.response.inverse(256));
+        let vmap = r
+            .model
+            .vignette
+            .as_ref()
+            .map(VignetteModel::map)
+            .unwrap_or_default();
+        let verr = vignette_rmse(&vmap, &truth_vig, alpha);
+        let eerr = exposure_error_pct(&r.exposure_ratios, &seq.exposures, alpha);
+        eprintln!(
+            "{label:12} {name:9} gauge {gauge:?} obs {nobs:7} resp {resp:.4} vig {verr:.4} exp {eerr:6.2}% alpha {alpha:.3} it {} rms {:.2}",
+            r.diagnostics.iterations, r.diagnostics.residual_rms_levels
+        );
+    };
+    let (lo, hi) = seq
+        .exposures
+        .iter()
+        .fold((9.0f64, 0.0f64), |a, &e| (a.0.min(e), a.1.max(e)));
+    eprintln!(
+        "{label}: truth f(.5) {:.3}, exposures {lo:.3}..{hi:.3}",
+        cam.response.forward(0.5)
+    );
+    if std::env::var_os("DIAG_GT").is_some() {
+        for mode in [Mode::Ideal, Mode::Exact, Mode::Bilinear] {
+            for g in [Some(truth_m), Some(0.5)] {
+                score(
+                    &format!("{mode:?}"),
+                    gt_obs(&cam, &video, &seq.exposures, &seq.frames, mode),
+                    g,
+                );
+            }
+        }
+    }
+    let seen = observe(&seq.frames, &OnlineParams::default(), w, h, &NoProgress).unwrap();
+    let fixed = drift(&video, &seq.frames, &seen);
+    score("tracks", seen, Some(truth_m));
+    score("truepos", fixed, Some(truth_m));
+}
+
+#[test]
+#[ignore]
+fn diag_ground_truth_observations() {
+    let ae = AeVideo {
+        program: ExposureProgram::AutoExposure {
+            target: 0.42,
+            gain: 0.5,
+            flicker: 0.05,
+        },
+        mid: 0.05,
+        stops: 6.5,
+        ..AeVideo::default()
+    };
+    run(
+        "mean-emor",
+        ResponseModel::Emor { c: [0.0; 4] },
+        ae.clone(),
+        [-0.35, 0.05, 0.0],
+    );
+    run(
+        "concave",
+        ResponseModel::Emor {
+            c: [-1.55, 0.13, 0.98, -0.12],
+        },
+        ae.clone(),
+        [-0.35, 0.05, 0.0],
+    );
+    run(
+        "gamma2.4",
+        ResponseModel::Gamma { gamma: 2.4 },
+        ae,
+        [-0.35, 0.05, 0.0],
+    );
+}
