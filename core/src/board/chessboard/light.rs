@@ -10,6 +10,7 @@
 
 use nalgebra::Vector2;
 
+use super::subpix::SaddleFitter;
 use crate::board::filter::ImageF;
 
 /// Smallest white square (pixels) whose centre is read as light: on smaller squares blur from
@@ -100,5 +101,36 @@ impl LightField {
         }
         let x = ata.try_inverse()? * atb;
         (x[0] > 1.0).then(|| Vector2::new(x[1], x[2]) / (x[0] * sig))
+    }
+}
+
+/// Refines every corner of the grid `g[j][i]` once more, from where the plain fit put it, with
+/// the light ramp measured on the white squares divided out; a corner whose refit fails keeps
+/// its plain position. `spacing(g, i, j)` is the distance to the nearest grid neighbour.
+pub(super) fn relight(
+    s: &ImageF,
+    g: &mut [Vec<[f64; 2]>],
+    fitters: &mut [Option<SaddleFitter>],
+    spacing: impl Fn(&Vec<Vec<[f64; 2]>>, usize, usize) -> f64,
+) {
+    let first: Vec<Vec<[f64; 2]>> = g.to_vec();
+    let Some(field) = LightField::fit(s, &first) else {
+        return;
+    };
+    for (j, row) in g.iter_mut().enumerate() {
+        for (i, corner) in row.iter_mut().enumerate() {
+            let Some(ramp) = field.ramp_local(first[j][i]) else {
+                continue;
+            };
+            let d = spacing(&first, i, j);
+            let r0 = ((0.3 * d).round() as i32).clamp(2, 8);
+            for radius in (2..=r0).rev() {
+                let f = fitters[radius as usize].get_or_insert_with(|| SaddleFitter::new(radius));
+                if let Some(p) = f.refine_lit(s, first[j][i], (0.1 * d).max(0.5), ramp) {
+                    *corner = p;
+                    break;
+                }
+            }
+        }
     }
 }

@@ -466,28 +466,8 @@ fn finish(
         }
         // Uneven light (vignetting, a lamp to one side) moves saddle points: measure it on the
         // board's white squares and refine once more with it divided out.
-        let first = g.clone();
-        let field = if opts.light_correction {
-            light::LightField::fit(s, &first)
-        } else {
-            None
-        };
-        for j in 0..gh {
-            for i in 0..gw {
-                let Some(ramp) = field.as_ref().and_then(|f| f.ramp_local(first[j][i])) else {
-                    continue;
-                };
-                let d = spacing(&first, i, j);
-                let r0 = ((0.3 * d).round() as i32).clamp(2, 8);
-                for radius in (2..=r0).rev() {
-                    let f =
-                        fitters[radius as usize].get_or_insert_with(|| SaddleFitter::new(radius));
-                    if let Some(p) = f.refine_lit(s, first[j][i], (0.1 * d).max(0.5), ramp) {
-                        g[j][i] = p;
-                        break;
-                    }
-                }
-            }
+        if opts.light_correction {
+            light::relight(s, &mut g, &mut fitters, |g, i, j| spacing(g, i, j));
         }
     }
 
