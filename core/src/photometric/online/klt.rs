@@ -123,6 +123,56 @@ fn clipped(v: f32) -> bool {
     !(0.01..=0.985).contains(&v)
 }
 
+/// One Gauss-Newton step of the gain-and-bias translation model `α·T + β ≈ J(q + ·)` of the
+/// template `tmpl` (a `(2·hw + 1)²` window, raster order) on level `lb` at `q`: the step
+/// `(dx, dy, dα, dβ)` in that level's pixels and the RMS residual. `None` when a sample leaves
+/// the level, fewer than half the pixels are usable (clipped), or the system is singular.
+fn align_step(
+    lb: &Level,
+    tmpl: &[f32],
+    hw: i32,
+    q: [f32; 2],
+    alpha: f32,
+    beta: f32,
+) -> Option<([f64; 4], f32)> {
+    let mut hm = [[0.0f32; 4]; 4];
+    let mut g = [0.0f32; 4];
+    let mut ss = 0.0f32;
+    let mut used = 0usize;
+    let mut k = 0;
+    for dy in -hw..=hw {
+        for dx in -hw..=hw {
+            let t = tmpl[k];
+            k += 1;
+            let [j, jx, jy] = lb.sample3(q[0] + dx as f32, q[1] + dy as f32)?;
+            if clipped(t) || clipped(j) {
+                continue;
+            }
+            used += 1;
+            let r = alpha * t + beta - j;
+            ss += r * r;
+            let jac = [jx, jy, -t, -1.0];
+            for i in 0..4 {
+                g[i] += jac[i] * r;
+                for m in i..4 {
+                    hm[i][m] += jac[i] * jac[m];
+                }
+            }
+        }
+    }
+    if used < tmpl.len() / 2 {
+        return None;
+    }
+    let m = nalgebra::Matrix4::from_fn(|i, j| {
+        f64::from(hm[i.min(j)][i.max(j)]) + if i == j { 1e-9 } else { 0.0 }
+    });
+    let step = m.lu().solve(&nalgebra::Vector4::from(g.map(f64::from)))?;
+    Some((
+        [step[0], step[1], step[2], step[3]],
+        (ss / used as f32).sqrt(),
+    ))
+}
+
 /// Track one point from `a` to `b` (level-0 coordinates); returns the new position.
 fn track_one(
     a: &Pyramid,
@@ -151,41 +201,9 @@ fn track_one(
             }
         }
         for _ in 0..cfg.iterations {
-            let (qx, qy) = (px + d[0] * s, py + d[1] * s);
-            let mut hm = [[0.0f32; 4]; 4];
-            let mut g = [0.0f32; 4];
-            let mut ss = 0.0f32;
-            let mut used = 0usize;
-            let mut k = 0;
-            for dy in -hw..=hw {
-                for dx in -hw..=hw {
-                    let (x, y) = (qx + dx as f32, qy + dy as f32);
-                    let t = tmpl[k];
-                    k += 1;
-                    let [j, jx, jy] = lb.sample3(x, y)?;
-                    if clipped(t) || clipped(j) {
-                        continue;
-                    }
-                    used += 1;
-                    let r = alpha * t + beta - j;
-                    ss += r * r;
-                    let jac = [jx, jy, -t, -1.0];
-                    for i in 0..4 {
-                        g[i] += jac[i] * r;
-                        for m in i..4 {
-                            hm[i][m] += jac[i] * jac[m];
-                        }
-                    }
-                }
-            }
-            if used < npx / 2 {
-                return None;
-            }
-            last_rms = (ss / used as f32).sqrt();
-            let m = nalgebra::Matrix4::from_fn(|i, j| {
-                f64::from(hm[i.min(j)][i.max(j)]) + if i == j { 1e-9 } else { 0.0 }
-            });
-            let step = m.lu().solve(&nalgebra::Vector4::from(g.map(f64::from)))?;
+            let (step, rms) =
+                align_step(lb, &tmpl, hw, [px + d[0] * s, py + d[1] * s], alpha, beta)?;
+            last_rms = rms;
             // Step is in this level's pixels.
             d[0] += (step[0] as f32) / s;
             d[1] += (step[1] as f32) / s;
@@ -278,45 +296,12 @@ pub(crate) fn refine_to_template(
     iterations: usize,
 ) -> Option<([f32; 2], f32)> {
     let lb = &b.levels[0];
-    let npx = tmpl.len();
     let mut d = [0.0f32; 2];
     let (mut alpha, mut beta) = (1.0f32, 0.0f32);
     let mut rms = f32::INFINITY;
     for _ in 0..iterations {
-        let (qx, qy) = (q[0] + d[0], q[1] + d[1]);
-        let mut hm = [[0.0f32; 4]; 4];
-        let mut g = [0.0f32; 4];
-        let mut ss = 0.0f32;
-        let mut used = 0usize;
-        let mut k = 0;
-        for dy in -hw..=hw {
-            for dx in -hw..=hw {
-                let t = tmpl[k];
-                k += 1;
-                let [j, jx, jy] = lb.sample3(qx + dx as f32, qy + dy as f32)?;
-                if clipped(t) || clipped(j) {
-                    continue;
-                }
-                used += 1;
-                let r = alpha * t + beta - j;
-                ss += r * r;
-                let jac = [jx, jy, -t, -1.0];
-                for i in 0..4 {
-                    g[i] += jac[i] * r;
-                    for m in i..4 {
-                        hm[i][m] += jac[i] * jac[m];
-                    }
-                }
-            }
-        }
-        if used < npx / 2 {
-            return None;
-        }
-        rms = (ss / used as f32).sqrt();
-        let m = nalgebra::Matrix4::from_fn(|i, j| {
-            f64::from(hm[i.min(j)][i.max(j)]) + if i == j { 1e-9 } else { 0.0 }
-        });
-        let step = m.lu().solve(&nalgebra::Vector4::from(g.map(f64::from)))?;
+        let (step, r) = align_step(lb, tmpl, hw, [q[0] + d[0], q[1] + d[1]], alpha, beta)?;
+        rms = r;
         d[0] += step[0] as f32;
         d[1] += step[1] as f32;
         alpha += step[2] as f32;
