@@ -2,8 +2,9 @@
 //!
 //! A token is `clp_` followed by 40 hex digits (160 random bits): greppable when leaked, and
 //! far too long to guess, so the store keeps only its SHA-256 (a slow password hash would
-//! add nothing for secrets of that entropy). Every request looks its token up in the store —
-//! no cache — so a revocation holds at once on every replica sharing the database.
+//! add nothing for secrets of that entropy). Lookups are cached per replica, and a revocation
+//! returns only once every caching replica has forgotten the token
+//! ([`crate::token_cache`]), so it holds from the next request on every replica.
 //!
 //! A device-scoped token sees only its devices: their documents, their jobs, and the datasets
 //! uploaded with such a token for them. Anything else answers 404 exactly as a missing

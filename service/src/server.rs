@@ -111,8 +111,9 @@ pub async fn open_state(config: Config) -> Result<(AppState, Option<File>), Star
 }
 
 /// Wake this replica's workers when any replica queues a job (`LISTEN`), polling staying the
-/// fallback if the connection drops; and empty the token cache on every revocation, caching
-/// only while the connection is up ([`crate::token_cache`]).
+/// fallback if the connection drops; and keep the token cache in the revocation protocol of
+/// [`crate::token_cache`]: registered and heartbeating while the connection is up, emptied
+/// and acknowledged on every revocation, not serving otherwise.
 fn listen_for_jobs(
     state: &AppState,
     tracker: &TaskTracker,
@@ -121,11 +122,12 @@ fn listen_for_jobs(
     let Some(pg) = state.store().as_pg() else {
         return;
     };
-    let pool = pg.pool().clone();
+    let pg = pg.clone();
     let state = state.clone();
+    let replica = uuid::Uuid::now_v7().to_string();
     tracker.spawn(async move {
         loop {
-            let mut listener = match sqlx::postgres::PgListener::connect_with(&pool).await {
+            let mut listener = match sqlx::postgres::PgListener::connect_with(pg.pool()).await {
                 Ok(l) => l,
                 Err(e) => {
                     tracing::warn!(error = %e, "LISTEN connection failed; retrying");
@@ -143,21 +145,51 @@ fn listen_for_jobs(
                 tracing::warn!(error = %e, "LISTEN failed; retrying");
                 continue;
             }
-            // Revocations are heard from now on: token lookups may be cached.
-            state.token_cache().set_live(true);
+            // Revocations are heard from now on: once registered, lookups may be cached.
+            let cache = state.token_cache();
+            let mut beat = tokio::time::interval(crate::token_cache::HEARTBEAT);
+            beat.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            let mut joined = false;
             loop {
                 tokio::select! {
-                    _ = stop.cancelled() => return,
+                    _ = stop.cancelled() => {
+                        cache.stop();
+                        let leave = pg.leave_token_caches(&replica);
+                        let _ = tokio::time::timeout(Duration::from_secs(1), leave).await;
+                        return;
+                    }
+                    _ = beat.tick() => {
+                        let sent = std::time::Instant::now();
+                        let alive = if joined {
+                            pg.token_cache_heartbeat(&replica).await
+                        } else {
+                            pg.join_token_caches(&replica).await.map(|()| true)
+                        };
+                        match alive {
+                            Ok(true) => {
+                                joined = true;
+                                cache.renew(sent);
+                            }
+                            // The row was removed (by a replica that took us for dead).
+                            Ok(false) => joined = false,
+                            Err(e) => tracing::warn!(error = %e, "token cache heartbeat failed"),
+                        }
+                    }
                     // `try_recv`, not `recv`: the latter reconnects silently, and a
                     // revocation sent meanwhile would be lost without our knowing.
                     n = listener.try_recv() => match n {
                         Ok(Some(n)) if n.channel() == crate::store::postgres::TOKENS_CHANNEL => {
-                            state.token_cache().invalidate();
+                            cache.invalidate();
+                            if let Ok(seq) = n.payload().parse::<i64>()
+                                && let Err(e) = pg.ack_token_revocation(&replica, seq).await
+                            {
+                                tracing::warn!(error = %e, "could not acknowledge a token revocation");
+                            }
                         }
                         Ok(Some(_)) => state.wake_workers(),
                         Ok(None) | Err(_) => {
                             // Until a new connection listens, stop caching.
-                            state.token_cache().set_live(false);
+                            cache.stop();
                             tracing::warn!("LISTEN connection lost; reconnecting");
                             break;
                         }

@@ -2,13 +2,24 @@
 //! trip to learn who sent it.
 //!
 //! Tokens never change after creation except by revocation, so a cached record is right until
-//! its token is revoked. Revocation reaches every replica through the database: the store
-//! announces it with `NOTIFY` in the revoking transaction, and each replica's `LISTEN` task
-//! empties its cache when the notification arrives (PostgreSQL signals the listeners at
-//! commit, so this normally happens before the revoking client has its answer). The cache is used only while that `LISTEN` connection is up: a replica
-//! that lost it (and so could miss a revocation) goes back to the database for every request
-//! until it has reconnected. With no `LISTEN` at all (the embedded SQLite profile, where
-//! `caliper token revoke` may write to the database from another process) it is never used.
+//! its token is revoked. A revocation must hold on every replica from the revoking client's
+//! next request, whichever replica that reaches, so the revocation does not return until every
+//! replica that caches has forgotten the token:
+//!
+//! 1. A replica caches only while its `LISTEN` connection is up and it is registered in the
+//!    database's `token_caches` table with a heartbeat younger than [`LIVE_WINDOW`] by its own
+//!    monotonic clock (the window starts before the heartbeat is sent, so it ends before the
+//!    database sees the row as older than [`LEASE`]).
+//! 2. A revocation takes the next number in commit order and announces it with `NOTIFY` at
+//!    commit. Each listening replica empties its cache and writes the number as applied.
+//! 3. The revoking call waits until every registered replica has applied the number or has a
+//!    heartbeat older than [`LEASE`] — a replica that cannot heartbeat has stopped serving from
+//!    its cache by then — and only then answers.
+//!
+//! A replica joins with the revocations committed so far marked as applied: its cache is
+//! empty and its `LISTEN` is already up, so it hears every later one. With no `LISTEN` at all
+//! (the embedded SQLite profile, where `caliper token revoke` may write to the database from
+//! another process) the cache is never used.
 //!
 //! A lookup that raced with a revocation must not put the old record back: every emptying
 //! bumps a generation, and a record read from the database is stored only if the generation
@@ -16,34 +27,56 @@
 
 use std::collections::HashMap;
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use crate::store::TokenRecord;
 
+/// A registered replica silent this long (by the database's clock) no longer delays
+/// revocations.
+pub const LEASE: Duration = Duration::from_secs(5);
+/// How long after it started sending its last successful heartbeat a replica serves from its
+/// cache: half the lease, a margin for clock rates and scheduling.
+pub const LIVE_WINDOW: Duration = Duration::from_millis(2500);
+// The window must end before the lease does.
+const _: () = assert!(LIVE_WINDOW.as_millis() < LEASE.as_millis());
+/// How often a caching replica heartbeats.
+pub const HEARTBEAT: Duration = Duration::from_secs(1);
 /// Longest a record is trusted without asking the database again (a bound on the damage of a
-/// lost notification that the connection state did not reveal).
+/// bug in the protocol above).
 const MAX_AGE: Duration = Duration::from_secs(60);
 /// Most records kept; the cache starts over when full (tokens are few; this bounds memory
 /// against a flood of distinct valid tokens).
 const MAX_ENTRIES: usize = 10_000;
 
+#[derive(Default)]
+struct Inner {
+    entries: HashMap<String, (TokenRecord, Instant)>,
+    /// Serving from the cache is allowed until then; `None`: not registered or not listening.
+    live_until: Option<Instant>,
+}
+
+impl Inner {
+    fn live(&self) -> bool {
+        self.live_until.is_some_and(|t| Instant::now() < t)
+    }
+}
+
 /// See the module docs.
 #[derive(Default)]
 pub struct TokenCache {
-    entries: Mutex<HashMap<String, (TokenRecord, Instant)>>,
+    inner: Mutex<Inner>,
     generation: AtomicU64,
-    live: AtomicBool,
 }
 
 impl TokenCache {
     /// The valid token with this secret hash, if cached, fresh, and the cache is live.
     pub fn get(&self, hash: &str) -> Option<TokenRecord> {
-        if !self.live.load(Ordering::Acquire) {
+        let inner = self.inner.lock().ok()?;
+        if !inner.live() {
             return None;
         }
-        let entries = self.entries.lock().ok()?;
-        let (t, at) = entries.get(hash)?;
+        let (t, at) = inner.entries.get(hash)?;
         (at.elapsed() < MAX_AGE).then(|| t.clone())
     }
 
@@ -55,34 +88,55 @@ impl TokenCache {
     /// Remember a valid (unrevoked) token read from the database, unless the cache was
     /// emptied since `generation` was taken or is not live.
     pub fn put(&self, hash: &str, token: &TokenRecord, generation: u64) {
-        if token.revoked_at.is_some() || !self.live.load(Ordering::Acquire) {
+        if token.revoked_at.is_some() {
             return;
         }
-        let Ok(mut entries) = self.entries.lock() else {
+        let Ok(mut inner) = self.inner.lock() else {
             return;
         };
         // Checked under the lock that `invalidate` also takes: no emptying can slip between.
-        if self.generation.load(Ordering::Acquire) != generation {
+        if !inner.live() || self.generation.load(Ordering::Acquire) != generation {
             return;
         }
-        if entries.len() >= MAX_ENTRIES {
-            entries.clear();
+        if inner.entries.len() >= MAX_ENTRIES {
+            inner.entries.clear();
         }
-        entries.insert(hash.to_string(), (token.clone(), Instant::now()));
+        inner
+            .entries
+            .insert(hash.to_string(), (token.clone(), Instant::now()));
     }
 
     /// Forget everything (a token was revoked somewhere).
     pub fn invalidate(&self) {
-        if let Ok(mut entries) = self.entries.lock() {
-            self.generation.fetch_add(1, Ordering::AcqRel);
-            entries.clear();
+        if let Ok(mut inner) = self.inner.lock() {
+            Self::clear(&mut inner, &self.generation);
         }
     }
 
-    /// Whether revocations are being heard; turning it either way empties the cache.
-    pub fn set_live(&self, live: bool) {
-        self.live.store(live, Ordering::Release);
-        self.invalidate();
+    fn clear(inner: &mut Inner, generation: &AtomicU64) {
+        generation.fetch_add(1, Ordering::AcqRel);
+        inner.entries.clear();
+    }
+
+    /// A registration or heartbeat that started at `sent` succeeded: serve from the cache
+    /// until `sent + LIVE_WINDOW`. After a lapse the cache starts empty, since revocations
+    /// may have been settled without this replica meanwhile.
+    pub fn renew(&self, sent: Instant) {
+        if let Ok(mut inner) = self.inner.lock() {
+            if !inner.live() {
+                Self::clear(&mut inner, &self.generation);
+            }
+            let until = sent + LIVE_WINDOW;
+            inner.live_until = Some(inner.live_until.map_or(until, |t| t.max(until)));
+        }
+    }
+
+    /// Stop serving from the cache (the `LISTEN` connection is lost, or shutdown) and empty it.
+    pub fn stop(&self) {
+        if let Ok(mut inner) = self.inner.lock() {
+            inner.live_until = None;
+            Self::clear(&mut inner, &self.generation);
+        }
     }
 }
 
@@ -109,7 +163,7 @@ mod tests {
         let t = token();
         c.put("h", &t, c.generation());
         assert!(c.get("h").is_none(), "not live: nothing cached");
-        c.set_live(true);
+        c.renew(Instant::now());
         let g = c.generation();
         c.put("h", &t, g);
         assert_eq!(c.get("h").map(|r| r.id), Some(t.id));
@@ -124,7 +178,36 @@ mod tests {
         c.put("r", &revoked, c.generation());
         assert!(c.get("r").is_none());
         c.put("h", &t, c.generation());
-        c.set_live(false);
+        c.stop();
         assert!(c.get("h").is_none());
+    }
+
+    #[test]
+    fn a_lapsed_heartbeat_stops_serving_and_the_renewal_starts_empty() {
+        let c = TokenCache::default();
+        let t = token();
+        let Some(old) = Instant::now().checked_sub(LIVE_WINDOW + Duration::from_millis(10)) else {
+            return;
+        };
+        // A heartbeat sent longer ago than the live window does not make the cache live.
+        c.renew(old);
+        c.put("h", &t, c.generation());
+        assert!(c.get("h").is_none(), "served past the live window");
+        c.renew(Instant::now());
+        c.put("h", &t, c.generation());
+        assert!(c.get("h").is_some());
+        // A renewal while live keeps what is cached.
+        c.renew(Instant::now());
+        assert!(c.get("h").is_some());
+        // The window runs out with the entry still stored: not served, and dropped on renewal.
+        if let Ok(mut inner) = c.inner.lock() {
+            inner.live_until = Some(old);
+        }
+        assert!(c.get("h").is_none(), "served past the live window");
+        c.renew(Instant::now());
+        assert!(
+            c.get("h").is_none(),
+            "a renewal after a lapse kept old entries"
+        );
     }
 }

@@ -439,7 +439,8 @@ async fn a_revoked_token_stops_on_every_replica_at_once() {
         assert_eq!(reader.get(&p.base, "/v1/jobs").await.0, 401);
     }
     // The replicas cache token lookups: a revocation made by the command line, beside every
-    // running replica, must end a token they have just served just the same.
+    // running replica, must end a token they have just served just the same (it waits for
+    // their acknowledgements as the API does).
     let (st, t2) = api
         .post(
             &reps[0].0.base,
@@ -484,6 +485,49 @@ async fn a_revoked_token_stops_on_every_replica_at_once() {
         .await
         .expect("get");
     assert_eq!(r.status(), 200);
+    // Both replicas are registered as caching; a killed one never acknowledges, yet a
+    // revocation on the survivor still completes once the dead one's lease (5 s) runs out.
+    let mut c = sqlx::PgConnection::connect(&db.url).await.expect("connect");
+    let caching: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM token_caches")
+        .fetch_one(&mut c)
+        .await
+        .expect("count");
+    assert_eq!(caching, 2, "both replicas registered as caching");
+    let mut reps = reps;
+    let _ = reps[0].0.child.kill();
+    let _ = reps[0].0.child.wait();
+    let (st, t3) = api
+        .post(
+            &reps[1].0.base,
+            "/v1/tokens",
+            &json!({"name": "ro3", "scope": "read"}),
+        )
+        .await;
+    assert_eq!(st, 201, "{t3}");
+    let reader3 = Api {
+        client: reqwest::Client::new(),
+        token: t3["token"].as_str().expect("secret").to_owned(),
+    };
+    assert_eq!(reader3.get(&reps[1].0.base, "/v1/jobs").await.0, 200);
+    let started = Instant::now();
+    let r = api
+        .client
+        .delete(format!(
+            "{}/v1/tokens/{}",
+            reps[1].0.base,
+            t3["id"].as_str().expect("id")
+        ))
+        .bearer_auth(&admin)
+        .send()
+        .await
+        .expect("revoke");
+    assert_eq!(r.status(), 204);
+    assert!(
+        started.elapsed() < Duration::from_secs(20),
+        "a dead replica held a revocation for {:?}",
+        started.elapsed()
+    );
+    assert_eq!(reader3.get(&reps[1].0.base, "/v1/jobs").await.0, 401);
     drop(reps);
     db.drop_db().await;
 }

@@ -17,6 +17,7 @@ mod blobs;
 mod datasets;
 mod documents;
 mod queue;
+mod token_caches;
 mod tokens;
 
 use std::str::FromStr;
@@ -36,8 +37,8 @@ pub const JOBS_CHANNEL: &str = "caliper_jobs";
 /// Channel on which job status and progress changes are announced (payload: a JSON
 /// [`crate::state::JobEvent`]).
 pub const EVENTS_CHANNEL: &str = "caliper_job_events";
-/// `NOTIFY` channel of token revocations (payload: the token id); replicas empty their token
-/// cache on it ([`crate::token_cache`]).
+/// `NOTIFY` channel of token revocations (payload: the revocation's number in commit order);
+/// replicas empty their token cache on it and acknowledge ([`crate::token_cache`]).
 pub const TOKENS_CHANNEL: &str = "caliper_tokens";
 
 fn migrator() -> Migrator {
@@ -57,6 +58,11 @@ fn migrator() -> Migrator {
             3,
             "aux_dataset",
             include_str!("migrations/0003_aux_dataset.sql"),
+        ),
+        m(
+            4,
+            "token_caches",
+            include_str!("migrations/0004_token_caches.sql"),
         ),
     ])
 }

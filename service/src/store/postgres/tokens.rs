@@ -1,4 +1,5 @@
-//! Access tokens, looked up by hash on every request (revocation holds at once everywhere).
+//! Access tokens; a revocation holds on every replica before it returns (see
+//! [`crate::token_cache`]).
 
 use async_trait::async_trait;
 use sqlx::Row;
@@ -58,8 +59,9 @@ impl TokenStore for PgStore {
     }
 
     async fn revoke_token(&self, id: Uuid, now: i64) -> StoreResult<bool> {
-        // The notification goes out with the commit, so every replica's token cache is
-        // emptied before the revoking client hears back (`caliper token revoke` included).
+        // The revocation takes the next number in commit order (the counter's row lock
+        // serialises revocations) and announces it at commit; it returns once every caching
+        // replica has emptied its cache (`caliper token revoke` included).
         let mut tx = self.pool.begin().await?;
         let r =
             sqlx::query("UPDATE tokens SET revoked_at = COALESCE(revoked_at, $1) WHERE id = $2")
@@ -67,12 +69,20 @@ impl TokenStore for PgStore {
                 .bind(id.to_string())
                 .execute(&mut *tx)
                 .await?;
+        if r.rows_affected() == 0 {
+            return Ok(false);
+        }
+        let n: i64 = sqlx::query("UPDATE token_revocations SET n = n + 1 RETURNING n")
+            .fetch_one(&mut *tx)
+            .await?
+            .try_get("n")?;
         sqlx::query("SELECT pg_notify($1, $2)")
             .bind(super::TOKENS_CHANNEL)
-            .bind(id.to_string())
+            .bind(n.to_string())
             .execute(&mut *tx)
             .await?;
         tx.commit().await?;
-        Ok(r.rows_affected() > 0)
+        self.wait_for_token_caches(n).await?;
+        Ok(true)
     }
 }
