@@ -285,6 +285,9 @@ pub struct AeVideo {
     /// Offset of the optical (vignetting) centre from the image centre, pixels: real lenses
     /// are rarely centred on the sensor (the online fit may estimate it).
     pub vignette_shift: [f64; 2],
+    /// Factor on the amplitude of the slow rotation and zoom (1 = the default motion); more
+    /// rotation and zoom is what makes the vignetting centre observable.
+    pub turn: f64,
 }
 
 impl Default for AeVideo {
@@ -302,6 +305,7 @@ impl Default for AeVideo {
             speed: 1.0,
             vignette: VignetteForm::Polynomial,
             vignette_shift: [0.0; 2],
+            turn: 1.0,
         }
     }
 }
@@ -446,8 +450,8 @@ fn render_planes(
             200.0 + 2.0 * video.speed * t,
             300.0 + 25.0 * (0.02 * video.speed * t).sin(),
         );
-        let th = 0.15 * (0.013 * t).sin();
-        let sc = 1.0 + 0.15 * (0.017 * t).sin();
+        let th = 0.15 * video.turn * (0.013 * t).sin();
+        let sc = 1.0 + 0.15 * video.turn * (0.017 * t).sin();
         let (c, s) = (th.cos() * sc, th.sin() * sc);
         let mut mean = 0.5;
         for (ch, ((_, gain), ccam)) in channels.iter().zip(&cams).enumerate() {

@@ -31,7 +31,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::super::emor::EMOR_DIM;
-use super::super::joint::{JointConfig, JointState, Obs, refine};
+use super::super::joint::{JointConfig, JointReport, JointState, Obs, refine};
 use super::super::response::ResponseModel;
 use super::super::{PhotoImage, check_stack};
 use super::center::r2_at;
@@ -116,6 +116,10 @@ pub fn photometric_online_rgb(
     let mut result = fit(frames.len(), w, h, g?, params, progress)?;
     let log_e: Vec<f64> = result.exposure_ratios.iter().map(|e| e.ln()).collect();
     let v = result.model.vignette.as_ref().map_or([0.0; 3], |m| m.v);
+    let green_c = match result.model.response {
+        ResponseModel::Emor { c } => c,
+        ResponseModel::Gamma { .. } => [0.0; EMOR_DIM],
+    };
     let center = result.vignette_center.center;
     let rad = (w as f64 / 2.0).hypot(h as f64 / 2.0);
     let huber = params.huber_levels / 255.0;
@@ -124,7 +128,7 @@ pub fn photometric_online_rgb(
         for (o, &p) in seen.obs.iter_mut().zip(&seen.pos) {
             o.r2 = r2_at(p, center, rad);
         }
-        fit_fixed(name, &seen, &log_e, v, huber, params, progress)
+        fit_fixed(name, &seen, &log_e, v, green_c, huber, params, progress)
     };
     let red = fit_other("r", r)?;
     let blue = fit_other("b", b)?;
@@ -233,45 +237,61 @@ fn sample_channel(
 }
 
 /// One channel's response (and radiances) with the exposures and vignetting fixed.
+///
+/// Started from the mean response and from green's response (channels of one camera are
+/// usually alike), keeping the lower robust cost: with the exposures fixed the problem has no
+/// gauge freedom left, but LM from a single start can still settle in a poor basin when the
+/// channel's curve is far from the start (seen on the tuning sequences with the mean start).
+#[allow(clippy::too_many_arguments)]
 fn fit_fixed(
     name: &str,
     seen: &Observations,
     log_e: &[f64],
     v: [f64; 3],
+    green: [f64; EMOR_DIM],
     huber: f64,
     params: &OnlineParams,
     progress: &dyn Progress,
 ) -> CoreResult<ChannelResponse> {
-    // Radiances from the mean response: `ln L = ln g₀(O) − ln e − ln V`, averaged per point.
-    let g0 = ResponseModel::default().inverse(4096);
-    let mut acc = vec![(0.0f64, 0.0f64); seen.n_points as usize];
-    for o in &seen.obs {
-        let r2 = f64::from(o.r2);
-        let vg = (1.0 + r2 * (v[0] + r2 * (v[1] + r2 * v[2]))).max(1e-3);
-        let a = &mut acc[o.point as usize];
-        a.0 += g0.eval(f64::from(o.value)).max(1e-6).ln() - log_e[o.frame as usize] - vg.ln();
-        a.1 += 1.0;
+    let mut best: Option<(JointState, JointReport)> = None;
+    for c0 in [[0.0; EMOR_DIM], green] {
+        // Radiances from the start response: `ln L = ln f₀⁻¹(O) − ln e − ln V`, per point.
+        let g0 = ResponseModel::Emor { c: c0 }.inverse(4096);
+        let mut acc = vec![(0.0f64, 0.0f64); seen.n_points as usize];
+        for o in &seen.obs {
+            let r2 = f64::from(o.r2);
+            let vg = (1.0 + r2 * (v[0] + r2 * (v[1] + r2 * v[2]))).max(1e-3);
+            let a = &mut acc[o.point as usize];
+            a.0 += g0.eval(f64::from(o.value)).max(1e-6).ln() - log_e[o.frame as usize] - vg.ln();
+            a.1 += 1.0;
+        }
+        let mut state = JointState {
+            c: c0,
+            v,
+            log_e: log_e.to_vec(),
+            log_l: acc.iter().map(|a| a.0 / a.1.max(1.0)).collect(),
+        };
+        let rep = refine(
+            &seen.obs,
+            &JointConfig {
+                fit_response: true,
+                fit_vignette: false,
+                fit_exposures: false,
+                gamma_gauge: None,
+                huber,
+                max_iterations: params.max_iterations,
+                label: if name == "r" { "red" } else { "blue" },
+            },
+            &mut state,
+            progress,
+        )?;
+        if best.as_ref().is_none_or(|(_, b)| rep.cost < b.cost) {
+            best = Some((state, rep));
+        }
     }
-    let mut state = JointState {
-        c: [0.0; EMOR_DIM],
-        v,
-        log_e: log_e.to_vec(),
-        log_l: acc.iter().map(|a| a.0 / a.1.max(1.0)).collect(),
+    let Some((state, rep)) = best else {
+        return Err(CoreError::NoSolution(format!("channel {name}: no fit")));
     };
-    let rep = refine(
-        &seen.obs,
-        &JointConfig {
-            fit_response: true,
-            fit_vignette: false,
-            fit_exposures: false,
-            gamma_gauge: None,
-            huber,
-            max_iterations: params.max_iterations,
-            label: if name == "r" { "red" } else { "blue" },
-        },
-        &mut state,
-        progress,
-    )?;
     let response = ResponseModel::Emor { c: state.c };
     Ok(ChannelResponse {
         channel: name.into(),
