@@ -156,25 +156,29 @@ fn run_center(
 fn tune_rgb() {
     for seed in [1, 3] {
         run_rgb(seed, 160, 120, 80, None);
+        run_rgb(seed, 160, 120, 80, Some(0.5));
     }
 }
 
 #[test]
 #[ignore]
 fn tune_center() {
-    super::center::HOLD_EXPOSURES.store(true, std::sync::atomic::Ordering::Relaxed);
-    for seed in [1, 3] {
-        run_center(seed, (160, 120, 120), 3.0, [12.8, -6.0]);
+    for seed in 1..=3 {
+        for turn in [1.0, 3.0] {
+            run_center(seed, (160, 120, 120), turn, [12.8, -6.0]);
+        }
         run_center(seed, (160, 120, 120), 3.0, [0.0; 2]);
     }
-    super::center::HOLD_EXPOSURES.store(false, std::sync::atomic::Ordering::Relaxed);
+
 }
 
-/// Held-out seed 101: three responses recovered, each closer to its own truth than to
+/// Held-out seed 105: three responses recovered, each closer to its own truth than to
 /// another channel's, in (nearly) the gauge of the shared exposures, which are recovered too.
+/// The gauge is chosen from the data (`gamma_gauge: null`): with `f_G(0.5) = 0.5` the red
+/// truth moved to green's gauge lies outside the EMoR-4 span (tuning seed 101: red 0.021).
 #[test]
 fn rgb_channels_recover_three_responses() {
-    let s = run_rgb(101, 160, 120, 80, Some(0.5));
+    let s = run_rgb(105, 160, 120, 80, None);
     let names: Vec<&str> = s
         .result
         .channel_responses
@@ -183,17 +187,15 @@ fn rgb_channels_recover_three_responses() {
         .map(|c| c.channel.as_str())
         .collect();
     assert_eq!(names, ["r", "g", "b"]);
-    assert!(s.own[1] < 0.01, "green {:?}", s.own);
-    assert!(s.own[0] < 0.03, "red {:?}", s.own);
-    assert!(s.own[2] < 0.015, "blue {:?}", s.own);
+    assert!(s.own.iter().all(|e| *e < 0.01), "response RMSE {:?}", s.own);
     // One gauge for all: the exponent aligning each channel to its truth is about green's.
     assert!(
         s.alpha.iter().all(|a| (a / s.alpha[1] - 1.0).abs() < 0.2),
         "α {:?}",
         s.alpha
     );
-    assert!(s.shared.iter().all(|e| *e < 0.05), "at green's α {:?}", s.shared);
-    assert!(s.exposure_pct < 8.0, "exposures {} %", s.exposure_pct);
+    assert!(s.shared.iter().all(|e| *e < 0.015), "at green's α {:?}", s.shared);
+    assert!(s.exposure_pct < 6.0, "exposures {} %", s.exposure_pct);
     let ch = s.result.channel_responses.as_ref().expect("channels");
     assert_eq!(ch[1].inverse_256, s.result.model.inverse_256);
     // Each channel is its own curve: red is far from the green truth.
