@@ -387,9 +387,15 @@ async fn photometric_online_fits_one_response_per_colour_channel() {
     let channels = doc["parameters"]["channel_responses"]
         .as_array()
         .expect("channel_responses");
-    let names: Vec<&str> = channels.iter().filter_map(|c| c["channel"].as_str()).collect();
+    let names: Vec<&str> = channels
+        .iter()
+        .filter_map(|c| c["channel"].as_str())
+        .collect();
     assert_eq!(names, ["r", "g", "b"]);
-    assert!(doc["parameters"]["vignette_center"]["estimated"].is_boolean(), "{doc}");
+    assert!(
+        doc["parameters"]["vignette_center"]["estimated"].is_boolean(),
+        "{doc}"
+    );
     // Green is the main model; red is its own curve, close to the red truth in green's gauge.
     assert_eq!(
         channels[1]["inverse_256"],
@@ -400,12 +406,18 @@ async fn photometric_online_fits_one_response_per_colour_channel() {
     let red = inv(&artifact_text(&s, &id, "pcalib_r.txt").await);
     let (alpha, g_err) = metrics::gamma_align(&green, &truth[1].inverse(256));
     let (_, r_err) = metrics::gamma_align(&red, &truth[0].inverse(256));
-    assert!(g_err < 0.015 && r_err < 0.015, "green {g_err}, red {r_err} (α {alpha})");
+    assert!(
+        g_err < 0.015 && r_err < 0.015,
+        "green {g_err}, red {r_err} (α {alpha})"
+    );
     let (_, r_as_green) = metrics::gamma_align(&red, &truth[1].inverse(256));
-    assert!(r_as_green > 2.0 * r_err, "red fits red ({r_err}), not green ({r_as_green})");
-    let r = reqwest::get(s.url(
-        "/v1/devices/rgb-cam/documents/cam0/photometric_online/latest?format=dso-pcalib-b",
-    ))
+    assert!(
+        r_as_green > 2.0 * r_err,
+        "red fits red ({r_err}), not green ({r_as_green})"
+    );
+    let r = reqwest::get(
+        s.url("/v1/devices/rgb-cam/documents/cam0/photometric_online/latest?format=dso-pcalib-b"),
+    )
     .await
     .expect("export");
     assert_eq!(r.status(), 200);
@@ -415,7 +427,10 @@ async fn photometric_online_fits_one_response_per_colour_channel() {
     // Bad values of the new parameters: refused at the edge with the field.
     for (options, field) in [
         (json!({"channels": "cmyk"}), "params.options.channels"),
-        (json!({"vignette_center": "middle"}), "params.options.vignette_center"),
+        (
+            json!({"vignette_center": "middle"}),
+            "params.options.vignette_center",
+        ),
     ] {
         let r = s
             .client
@@ -425,7 +440,10 @@ async fn photometric_online_fits_one_response_per_colour_channel() {
             .await
             .expect("post");
         assert_eq!(r.status(), 422);
-        let ct = r.headers()["content-type"].to_str().unwrap_or("").to_string();
+        let ct = r.headers()["content-type"]
+            .to_str()
+            .unwrap_or("")
+            .to_string();
         assert_eq!(ct, "application/problem+json");
         let p: Value = r.json().await.expect("problem");
         assert_eq!(p["code"], "invalid_param", "{p}");

@@ -158,7 +158,14 @@ impl PhotoImage {
         let (max, data): (u16, Vec<u16>) = if sixteen {
             (u16::MAX, img.into_rgb16().into_raw())
         } else {
-            (255, img.into_rgb8().into_raw().into_iter().map(u16::from).collect())
+            (
+                255,
+                img.into_rgb8()
+                    .into_raw()
+                    .into_iter()
+                    .map(u16::from)
+                    .collect(),
+            )
         };
         let plane = |c: usize| {
             let v: Vec<u16> = data.iter().skip(c).step_by(3).copied().collect();

@@ -244,26 +244,24 @@ pub(super) fn fit_center(
         (h, g, blocks, ss, n)
     };
     // Reduced (Schur) system for damping `lam`.
-    let reduce = |h: &DMatrix<f64>,
-                  g: &DVector<f64>,
-                  blocks: &[(f64, f64, Vec<(usize, f64)>)],
-                  lam: f64| {
-        let mut s = h.clone();
-        let mut b = g.clone();
-        for a in 0..dim {
-            s[(a, a)] += lam * h[(a, a)].max(1e-12);
-        }
-        for (hl, bl, cross) in blocks {
-            let hd = hl * (1.0 + lam) + 1e-12;
-            for &(a, xa) in cross {
-                b[a] -= xa * bl / hd;
-                for &(c, xc) in cross {
-                    s[(a, c)] -= xa * xc / hd;
+    let reduce =
+        |h: &DMatrix<f64>, g: &DVector<f64>, blocks: &[(f64, f64, Vec<(usize, f64)>)], lam: f64| {
+            let mut s = h.clone();
+            let mut b = g.clone();
+            for a in 0..dim {
+                s[(a, a)] += lam * h[(a, a)].max(1e-12);
+            }
+            for (hl, bl, cross) in blocks {
+                let hd = hl * (1.0 + lam) + 1e-12;
+                for &(a, xa) in cross {
+                    b[a] -= xa * bl / hd;
+                    for &(c, xc) in cross {
+                        s[(a, c)] -= xa * xc / hd;
+                    }
                 }
             }
-        }
-        (s, b)
-    };
+            (s, b)
+        };
     for _ in 0..max_iterations {
         progress.check()?;
         let (h, g, blocks, _, _) = normal(&st);
@@ -379,7 +377,10 @@ pub(super) fn resolve(
     };
     report.estimate = Some(fit.center);
     report.sigma = Some(fit.sigma);
-    let (dx, dy) = (fit.center[0] - image_center[0], fit.center[1] - image_center[1]);
+    let (dx, dy) = (
+        fit.center[0] - image_center[0],
+        fit.center[1] - image_center[1],
+    );
     let chi2 = (dx / fit.sigma[0]).powi(2) + (dy / fit.sigma[1]).powi(2);
     let sigma_max = fit.sigma[0].max(fit.sigma[1]);
     let keep = match mode {
@@ -410,9 +411,8 @@ pub(super) fn resolve(
             false
         }
         _ => {
-            report.reason = format!(
-                "estimated: σ {sigma_max:.2} px, shift significant (χ² {chi2:.1})"
-            );
+            report.reason =
+                format!("estimated: σ {sigma_max:.2} px, shift significant (χ² {chi2:.1})");
             true
         }
     };

@@ -78,7 +78,9 @@ fn luma_of(f: &[PhotoImage; 3]) -> CoreResult<PhotoImage> {
         .iter()
         .any(|p| p.width != r.width || p.height != r.height || p.max_level != r.max_level)
     {
-        return Err(CoreError::input("the R, G and B planes of a frame differ in size"));
+        return Err(CoreError::input(
+            "the R, G and B planes of a frame differ in size",
+        ));
     }
     let data = r
         .data
@@ -163,7 +165,11 @@ fn sample_channel(
     let mut sampled: Vec<Option<Obs>> = vec![None; seen.obs.len()];
     for (k, idx) in by_frame.iter().enumerate() {
         progress.check()?;
-        progress.report("channels", (c * frames.len() + k) as u64, 3 * frames.len() as u64);
+        progress.report(
+            "channels",
+            (c * frames.len() + k) as u64,
+            3 * frames.len() as u64,
+        );
         if idx.is_empty() {
             continue;
         }

@@ -3,15 +3,15 @@
 
 use caliper_core::Progress;
 use caliper_core::photometric::{
-    Channels, InverseResponse, OnlineParams, dso, photometric_online, photometric_online_rgb,
-    plot,
+    Channels, InverseResponse, OnlineParams, dso, photometric_online, photometric_online_rgb, plot,
 };
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
 use super::clip::{ClipFrames, clip_sequence};
 use super::{
-    decode_all, decode_all_rgb, permanent, response_artifacts, sorted_files, text_artifact, times_entries, vignette_artifacts,
+    decode_all, decode_all_rgb, permanent, response_artifacts, sorted_files, text_artifact,
+    times_entries, vignette_artifacts,
 };
 use crate::jobs::{
     Artifact, CliContext, Export, JobError, JobInput, JobOutput, JsonParams, Kind, ParamError,
@@ -85,14 +85,23 @@ impl Kind for PhotometricOnline {
         };
         let files = sorted_files(input);
         let (r, n_frames) = match &clip {
-            Some(c) => (photometric_online(&c.images, &p.options, progress)?, c.images.len()),
+            Some(c) => (
+                photometric_online(&c.images, &p.options, progress)?,
+                c.images.len(),
+            ),
             None if rgb => {
                 let frames = decode_all_rgb(input, &files, progress)?;
-                (photometric_online_rgb(&frames, &p.options, progress)?, frames.len())
+                (
+                    photometric_online_rgb(&frames, &p.options, progress)?,
+                    frames.len(),
+                )
             }
             None => {
                 let frames = decode_all(input, &files, progress)?;
-                (photometric_online(&frames, &p.options, progress)?, frames.len())
+                (
+                    photometric_online(&frames, &p.options, progress)?,
+                    frames.len(),
+                )
             }
         };
         let quality = json!({
