@@ -26,7 +26,7 @@
 //! zoom and the r⁴/r⁶ terms, and it trades with exposure drift. Holding the exposures at the
 //! centred fit's values (tried while tuning) only pins the estimate to the image centre
 //! (the exposures have already absorbed the tilt); leaving them free lets small systematic
-//! errors of the tracks move it: on the tuning sequences the estimate was off by 10–40 px
+//! errors of the tracks move it: on the tuning sequences the estimate was off by 4–49 px
 //! with a σ near 1 px, so `auto` is opt-in (see the README's limits).
 
 use nalgebra::{DMatrix, DVector};

@@ -17,8 +17,8 @@
 //!    exposures and radiances ([`super::joint`]), with the gauge fixed explicitly: exposure 0 is
 //!    1 and `f(0.5) = gamma_gauge` (default 0.5, i.e. `f⁻¹(0.5) = 0.5`), so results are unique
 //!    and repeatable; with `gamma_gauge: null` the value is chosen from the data ([`gauge`]).
-//! 4. The vignetting centre, estimated and kept when the tracks constrain it ([`center`]),
-//!    followed by a final joint refinement around it.
+//! 4. Optionally (`vignette_center: auto | estimated`; the default keeps DSO's image centre)
+//!    the vignetting centre ([`center`]), followed by a final joint refinement around it.
 //!
 //! Colour input with `channels: rgb` tracks on luma and fits one response per channel with
 //! exposures and vignetting shared ([`channels`]).
