@@ -108,6 +108,9 @@ fn vig(v: &[f64; 3], r2: f64) -> f64 {
     (1.0 + r2 * (v[0] + r2 * (v[1] + r2 * v[2]))).max(1e-3)
 }
 
+/// Per scene point: `H_ll`, `b_l` and the cross terms with the dense parameters.
+type PointBlock = (f64, f64, Vec<(usize, f64)>);
+
 /// Dense parameters: `v1..v3`, the centre in units of the half diagonal, log exposures 1…
 const NV: usize = 3;
 const NCEN: usize = 2;
@@ -175,7 +178,7 @@ pub(super) fn fit_center(
     type Normal = (
         DMatrix<f64>,
         DVector<f64>,
-        Vec<(f64, f64, Vec<(usize, f64)>)>,
+        Vec<PointBlock>,
         f64,
         usize,
     );
@@ -245,7 +248,7 @@ pub(super) fn fit_center(
     };
     // Reduced (Schur) system for damping `lam`.
     let reduce =
-        |h: &DMatrix<f64>, g: &DVector<f64>, blocks: &[(f64, f64, Vec<(usize, f64)>)], lam: f64| {
+        |h: &DMatrix<f64>, g: &DVector<f64>, blocks: &[PointBlock], lam: f64| {
             let mut s = h.clone();
             let mut b = g.clone();
             for a in 0..dim {
