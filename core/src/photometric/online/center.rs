@@ -175,13 +175,7 @@ pub(super) fn fit_center(
     let mut lambda = 1e-3;
     // Normal equations at `s`: dense block, gradient, per-point (H_ll, b_l, cross terms), and
     // the weighted squared residuals with their count (for the variance).
-    type Normal = (
-        DMatrix<f64>,
-        DVector<f64>,
-        Vec<PointBlock>,
-        f64,
-        usize,
-    );
+    type Normal = (DMatrix<f64>, DVector<f64>, Vec<PointBlock>, f64, usize);
     let normal = |s: &St| -> Normal {
         let mut h = DMatrix::<f64>::zeros(dim, dim);
         let mut g = DVector::<f64>::zeros(dim);
@@ -247,24 +241,23 @@ pub(super) fn fit_center(
         (h, g, blocks, ss, n)
     };
     // Reduced (Schur) system for damping `lam`.
-    let reduce =
-        |h: &DMatrix<f64>, g: &DVector<f64>, blocks: &[PointBlock], lam: f64| {
-            let mut s = h.clone();
-            let mut b = g.clone();
-            for a in 0..dim {
-                s[(a, a)] += lam * h[(a, a)].max(1e-12);
-            }
-            for (hl, bl, cross) in blocks {
-                let hd = hl * (1.0 + lam) + 1e-12;
-                for &(a, xa) in cross {
-                    b[a] -= xa * bl / hd;
-                    for &(c, xc) in cross {
-                        s[(a, c)] -= xa * xc / hd;
-                    }
+    let reduce = |h: &DMatrix<f64>, g: &DVector<f64>, blocks: &[PointBlock], lam: f64| {
+        let mut s = h.clone();
+        let mut b = g.clone();
+        for a in 0..dim {
+            s[(a, a)] += lam * h[(a, a)].max(1e-12);
+        }
+        for (hl, bl, cross) in blocks {
+            let hd = hl * (1.0 + lam) + 1e-12;
+            for &(a, xa) in cross {
+                b[a] -= xa * bl / hd;
+                for &(c, xc) in cross {
+                    s[(a, c)] -= xa * xc / hd;
                 }
             }
-            (s, b)
-        };
+        }
+        (s, b)
+    };
     for _ in 0..max_iterations {
         progress.check()?;
         let (h, g, blocks, _, _) = normal(&st);

@@ -122,7 +122,13 @@ fn run_rgb(seed: u64, w: usize, h: usize, frames: usize, gauge: Option<f64>) -> 
     eprintln!(
         "rgb seed {seed} {w}x{h}x{frames} gauge {gauge:?}: resp own {:.4?} at green α {:.4?} (α {:.3?}) exp rms {:.2}% \
          median {:.2}% step {:.2}% residuals {:.2?}",
-        score.own, score.shared, score.alpha, score.exposure_pct, score.exposure_median_pct, score.exposure_step_pct, rms
+        score.own,
+        score.shared,
+        score.alpha,
+        score.exposure_pct,
+        score.exposure_median_pct,
+        score.exposure_step_pct,
+        rms
     );
     score
 }
