@@ -104,11 +104,50 @@ fn camera(doc: &Value, fmt: caliper_core::export::ExportFormat) -> Result<String
 }
 
 /// The photometric documents' export: DSO's `pcalib.txt` (the inverse response as 256 values).
-pub const PHOTOMETRIC_EXPORTS: &[Export] = &[Export {
-    format: "dso-pcalib",
-    media_type: "text/plain; charset=utf-8",
-    render: dso_pcalib,
-}];
+pub const PHOTOMETRIC_EXPORTS: &[Export] = &[
+    Export {
+        format: "dso-pcalib",
+        media_type: "text/plain; charset=utf-8",
+        render: dso_pcalib,
+    },
+    Export {
+        format: "dso-pcalib-r",
+        media_type: "text/plain; charset=utf-8",
+        render: |d| dso_pcalib_channel(d, "r"),
+    },
+    Export {
+        format: "dso-pcalib-g",
+        media_type: "text/plain; charset=utf-8",
+        render: |d| dso_pcalib_channel(d, "g"),
+    },
+    Export {
+        format: "dso-pcalib-b",
+        media_type: "text/plain; charset=utf-8",
+        render: |d| dso_pcalib_channel(d, "b"),
+    },
+];
+
+/// One colour channel's `pcalib.txt`, from a `photometric_online` document fitted with
+/// `channels: rgb` (`parameters.channel_responses`); other documents have no channels.
+fn dso_pcalib_channel(doc: &Value, channel: &str) -> Result<String, ExportError> {
+    use caliper_core::photometric::{ChannelResponse, InverseResponse, dso};
+    let Some(list) = doc["parameters"].get("channel_responses") else {
+        return Err(ExportError::Unavailable(
+            "this document has one response (no per-channel responses: fit photometric_online \
+             with options.channels rgb); use dso-pcalib"
+                .into(),
+        ));
+    };
+    let list: Vec<ChannelResponse> =
+        serde_json::from_value(list.clone()).map_err(|e| ExportError::Corrupt(e.to_string()))?;
+    let ch = list
+        .into_iter()
+        .find(|c| c.channel == channel)
+        .ok_or_else(|| ExportError::Corrupt(format!("no channel {channel}")))?;
+    let inv = InverseResponse::new(ch.inverse_256)
+        .map_err(|e| ExportError::Unavailable(e.to_string()))?;
+    Ok(dso::write_pcalib(&inv))
+}
 
 fn dso_pcalib(doc: &Value) -> Result<String, ExportError> {
     use caliper_core::photometric::{InverseResponse, PhotometricModel, dso};

@@ -6,9 +6,9 @@
 use std::io::Cursor;
 
 use caliper_core::photometric::synth::{
-    SynthCamera, render_ae_sequence, render_bracket, render_flats,
+    AeVideo, SynthCamera, render_ae_sequence, render_ae_video_rgb, render_bracket, render_flats,
 };
-use caliper_core::photometric::{PhotoImage, dso, metrics};
+use caliper_core::photometric::{PhotoImage, ResponseModel, dso, metrics};
 use image::{DynamicImage, ImageBuffer, ImageFormat, Luma};
 use serde_json::{Value, json};
 
@@ -334,5 +334,139 @@ async fn photometric_online_fits_an_auto_exposure_clip() {
         .await;
     assert_eq!(st, 422, "{body}");
     assert_eq!(body["field"], "params.clip.max_frames", "{body}");
+    s.stop().await;
+}
+
+/// `[R, G, B]` 8-bit planes as a colour PNG.
+fn png_rgb(planes: &[PhotoImage; 3]) -> Vec<u8> {
+    let (w, h) = (planes[0].width, planes[0].height);
+    let mut data = Vec::with_capacity(w * h * 3);
+    for i in 0..w * h {
+        data.extend(planes.iter().map(|p| p.data[i] as u8));
+    }
+    let buf = image::RgbImage::from_raw(w as u32, h as u32, data).expect("size");
+    let mut out = Cursor::new(Vec::new());
+    DynamicImage::ImageRgb8(buf)
+        .write_to(&mut out, ImageFormat::Png)
+        .expect("png");
+    out.into_inner()
+}
+
+/// A colour auto-exposure sequence with a different response per channel: `options.channels:
+/// "rgb"` writes three responses (and a `pcalib_<c>.txt` and `dso-pcalib-<c>` export each),
+/// the red one close to the red truth; a bad value of the new parameters is refused at the
+/// edge, grey frames asked for rgb fail with a clear error.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn photometric_online_fits_one_response_per_colour_channel() {
+    let cam = SynthCamera::reference(160, 120, 23);
+    let truth = [
+        ResponseModel::Emor {
+            c: [1.5, 0.6, -0.3, 0.05],
+        },
+        cam.response.clone(),
+        ResponseModel::Gamma { gamma: 1.8 },
+    ];
+    let seq = render_ae_video_rgb(&cam, &truth, [0.8, 1.0, 1.25], 60, &AeVideo::default());
+    let files: Vec<(String, Vec<u8>)> = seq
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| (format!("f{i:03}.png"), png_rgb(f)))
+        .collect();
+    let s = start().await;
+    let (st, ds, _) = s
+        .upload(files.iter().map(|(n, b)| (n.as_str(), b.clone())).collect())
+        .await;
+    assert_eq!(st, 201, "{ds}");
+    let id = s
+        .job(json!({"kind": "photometric_online", "dataset": ds["id"], "device": "rgb-cam", "sensor": "cam0", "params": {"options": {"channels": "rgb", "gamma_gauge": null, "max_features": 150}}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    let channels = doc["parameters"]["channel_responses"]
+        .as_array()
+        .expect("channel_responses");
+    let names: Vec<&str> = channels
+        .iter()
+        .filter_map(|c| c["channel"].as_str())
+        .collect();
+    assert_eq!(names, ["r", "g", "b"]);
+    assert!(
+        doc["parameters"]["vignette_center"]["estimated"].is_boolean(),
+        "{doc}"
+    );
+    // Green is the main model; red is its own curve, close to the red truth in green's gauge.
+    assert_eq!(
+        channels[1]["inverse_256"],
+        doc["parameters"]["model"]["inverse_256"]
+    );
+    let inv = |t: &str| dso::read_pcalib(t).expect("pcalib");
+    let green = inv(&artifact_text(&s, &id, "pcalib_g.txt").await);
+    let red = inv(&artifact_text(&s, &id, "pcalib_r.txt").await);
+    let (alpha, g_err) = metrics::gamma_align(&green, &truth[1].inverse(256));
+    let (_, r_err) = metrics::gamma_align(&red, &truth[0].inverse(256));
+    // 60 small frames: looser than the core tests (which reach < 0.01 on 80 frames).
+    assert!(
+        g_err < 0.02 && r_err < 0.03,
+        "green {g_err}, red {r_err} (α {alpha})"
+    );
+    let (_, r_as_green) = metrics::gamma_align(&red, &truth[1].inverse(256));
+    assert!(
+        r_as_green > r_err,
+        "red fits red ({r_err}), not green ({r_as_green})"
+    );
+    let r = reqwest::get(
+        s.url("/v1/devices/rgb-cam/documents/cam0/photometric_online/latest?format=dso-pcalib-b"),
+    )
+    .await
+    .expect("export");
+    assert_eq!(r.status(), 200);
+    let blue = inv(&r.text().await.expect("text"));
+    assert_eq!(blue.values.len(), 256);
+
+    // Bad values of the new parameters: refused at the edge with the field.
+    for (options, field) in [
+        (json!({"channels": "cmyk"}), "params.options.channels"),
+        (
+            json!({"vignette_center": "middle"}),
+            "params.options.vignette_center",
+        ),
+    ] {
+        let r = s
+            .client
+            .post(s.url("/v1/jobs"))
+            .json(&json!({"kind": "photometric_online", "dataset": ds["id"], "params": {"options": options}}))
+            .send()
+            .await
+            .expect("post");
+        assert_eq!(r.status(), 422);
+        let ct = r.headers()["content-type"]
+            .to_str()
+            .unwrap_or("")
+            .to_string();
+        assert_eq!(ct, "application/problem+json");
+        let p: Value = r.json().await.expect("problem");
+        assert_eq!(p["code"], "invalid_param", "{p}");
+        assert_eq!(p["field"], field, "{p}");
+    }
+    // Grey frames asked for rgb: the job fails, saying why.
+    let grey: Vec<(String, Vec<u8>)> = render_ae_sequence(&cam, 4)
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| (format!("g{i}.png"), png(f)))
+        .collect();
+    let (_, gds, _) = s
+        .upload(grey.iter().map(|(n, b)| (n.as_str(), b.clone())).collect())
+        .await;
+    let id = s
+        .job(json!({"kind": "photometric_online", "dataset": gds["id"], "params": {"options": {"channels": "rgb"}}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "failed", "{done}");
+    assert_eq!(done["error"]["code"], "invalid_input", "{done}");
+    let msg = done["error"].to_string();
+    assert!(msg.contains("greyscale"), "{msg}");
     s.stop().await;
 }

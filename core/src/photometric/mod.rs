@@ -42,7 +42,10 @@ pub use bracket::{ResponseParams, ResponseResult, photometric_response};
 pub use correct::{CorrectParams, correct};
 pub use emor::{EMOR_DIM, EMOR_SAMPLES, EmorBasis, emor_basis};
 pub use flat::{VignetteKind, VignettingParams, VignettingResult, vignetting};
-pub use online::{OnlineParams, OnlineResult, photometric_online};
+pub use online::{
+    CenterMode, CenterReport, ChannelResponse, Channels, OnlineParams, OnlineResult,
+    photometric_online, photometric_online_rgb,
+};
 pub use response::{InverseResponse, ResponseModel};
 pub use spline::RadialSpline;
 pub use vignette::VignetteModel;
@@ -135,6 +138,40 @@ impl PhotoImage {
                 l.into_raw().into_iter().map(u16::from).collect(),
             )
         }
+    }
+
+    /// Decode a colour PNG/TIFF/JPEG into its `[R, G, B]` planes, keeping the bit depth like
+    /// [`Self::decode`] (alpha is dropped). Grey images are refused: a per-channel fit needs
+    /// three channels.
+    pub fn decode_rgb(bytes: &[u8], limits: &ImageLimits) -> CoreResult<[Self; 3]> {
+        let (img, _) = crate::io::decode_image(bytes, limits)?;
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        if !img.color().has_color() {
+            return Err(CoreError::input(
+                "the image is greyscale: channels rgb needs colour images (use luma)",
+            ));
+        }
+        let sixteen = matches!(
+            img,
+            DynamicImage::ImageRgb16(_) | DynamicImage::ImageRgba16(_)
+        );
+        let (max, data): (u16, Vec<u16>) = if sixteen {
+            (u16::MAX, img.into_rgb16().into_raw())
+        } else {
+            (
+                255,
+                img.into_rgb8()
+                    .into_raw()
+                    .into_iter()
+                    .map(u16::from)
+                    .collect(),
+            )
+        };
+        let plane = |c: usize| {
+            let v: Vec<u16> = data.iter().skip(c).step_by(3).copied().collect();
+            Self::new(w, h, max, v)
+        };
+        Ok([plane(0)?, plane(1)?, plane(2)?])
     }
 
     /// Normalised value at integer coordinates.

@@ -282,6 +282,12 @@ pub struct AeVideo {
     pub speed: f64,
     /// Vignetting law.
     pub vignette: VignetteForm,
+    /// Offset of the optical (vignetting) centre from the image centre, pixels: real lenses
+    /// are rarely centred on the sensor (the online fit may estimate it).
+    pub vignette_shift: [f64; 2],
+    /// Factor on the amplitude of the slow rotation and zoom (1 = the default motion); more
+    /// rotation and zoom is what makes the vignetting centre observable.
+    pub turn: f64,
 }
 
 impl Default for AeVideo {
@@ -298,6 +304,8 @@ impl Default for AeVideo {
             stops: 7.0,
             speed: 1.0,
             vignette: VignetteForm::Polynomial,
+            vignette_shift: [0.0; 2],
+            turn: 1.0,
         }
     }
 }
@@ -338,11 +346,81 @@ fn patches(seed: u64, u: f64, v: f64) -> f64 {
 /// A camera gliding over a plane (translation ~2·speed px/frame, slow rotation and zoom)
 /// under the given exposure program, scene and vignetting law.
 pub fn render_ae_video(cam: &SynthCamera, frames: usize, video: &AeVideo) -> AeSequence {
+    let (mut planes, rest) = render_planes(cam, &[(cam.response.clone(), 1.0)], 0, frames, video);
+    AeSequence {
+        frames: planes.pop().unwrap_or_default(),
+        ..rest
+    }
+}
+
+/// A colour auto-exposure video and its ground truth.
+#[derive(Debug, Clone)]
+pub struct AeSequenceRgb {
+    /// Frames as `[R, G, B]` planes.
+    pub frames: Vec<[PhotoImage; 3]>,
+    /// True exposure of each frame relative to frame 0 (shared by the channels).
+    pub exposures: Vec<f64>,
+    /// Timestamps in seconds (20 fps).
+    pub timestamps: Vec<f64>,
+    /// True attenuation map (shared by the channels).
+    pub vignette_map: Vec<f32>,
+}
+
+/// [`render_ae_video`] for a colour camera: one response per channel (`[R, G, B]`), the scene
+/// radiance times a per-channel `gain` (a tinted scene), and exposure and vignetting shared by
+/// the channels; the exposure controller meters the green plane. Noise is independent per
+/// channel.
+pub fn render_ae_video_rgb(
+    cam: &SynthCamera,
+    responses: &[ResponseModel; 3],
+    gains: [f64; 3],
+    frames: usize,
+    video: &AeVideo,
+) -> AeSequenceRgb {
+    let channels: Vec<(ResponseModel, f64)> = responses.iter().cloned().zip(gains).collect();
+    let (planes, rest) = render_planes(cam, &channels, 1, frames, video);
+    let mut it = planes.into_iter();
+    let (r, g, b) = (
+        it.next().unwrap_or_default(),
+        it.next().unwrap_or_default(),
+        it.next().unwrap_or_default(),
+    );
+    AeSequenceRgb {
+        frames: r
+            .into_iter()
+            .zip(g)
+            .zip(b)
+            .map(|((r, g), b)| [r, g, b])
+            .collect(),
+        exposures: rest.exposures,
+        timestamps: rest.timestamps,
+        vignette_map: rest.vignette_map,
+    }
+}
+
+/// Render one plane sequence per `(response, radiance gain)` channel; the exposure controller
+/// meters channel `meter`. Returns the planes and the ground truth (with empty `frames`). With
+/// one channel the random streams are exactly those of the single-channel renderer.
+fn render_planes(
+    cam: &SynthCamera,
+    channels: &[(ResponseModel, f64)],
+    meter: usize,
+    frames: usize,
+    video: &AeVideo,
+) -> (Vec<Vec<PhotoImage>>, AeSequence) {
     let tex = Texture::new(cam.seed, video.mid, video.stops);
     let mut rng = Rng::new(cam.seed ^ 0xAE5E);
     let mut prog_rng = Rng::new(cam.seed ^ 0x5EED);
     let (cx, cy) = (cam.width as f64 / 2.0, cam.height as f64 / 2.0);
-    let vm = cam.vignette_model();
+    let mut vm = cam.vignette_model();
+    vm.center = [cx + video.vignette_shift[0], cy + video.vignette_shift[1]];
+    let cams: Vec<SynthCamera> = channels
+        .iter()
+        .map(|(resp, _)| SynthCamera {
+            response: resp.clone(),
+            ..cam.clone()
+        })
+        .collect();
     let vig = |x: f64, y: f64| match video.vignette {
         VignetteForm::Polynomial => vm.eval(x, y),
         VignetteForm::Cos4 { corner_deg } => {
@@ -360,31 +438,37 @@ pub fn render_ae_video(cam: &SynthCamera, frames: usize, video: &AeVideo) -> AeS
     };
     let mut e = E_START;
     let mut out = AeSequence {
-        frames: Vec::with_capacity(frames),
+        frames: Vec::new(),
         exposures: Vec::with_capacity(frames),
         timestamps: Vec::with_capacity(frames),
         vignette_map,
     };
+    let mut planes: Vec<Vec<PhotoImage>> = vec![Vec::with_capacity(frames); channels.len()];
     for k in 0..frames {
         let t = k as f64;
         let (tx, ty) = (
             200.0 + 2.0 * video.speed * t,
             300.0 + 25.0 * (0.02 * video.speed * t).sin(),
         );
-        let th = 0.15 * (0.013 * t).sin();
-        let sc = 1.0 + 0.15 * (0.017 * t).sin();
+        let th = 0.15 * video.turn * (0.013 * t).sin();
+        let sc = 1.0 + 0.15 * video.turn * (0.017 * t).sin();
         let (c, s) = (th.cos() * sc, th.sin() * sc);
-        let img = cam.form_with(
-            &mut rng,
-            |x, y| {
-                let (px, py) = (x - cx, y - cy);
-                e * radiance(c * px - s * py + tx, s * px + c * py + ty)
-            },
-            vig,
-        );
-        let mean = img.data.iter().map(|&v| f64::from(v)).sum::<f64>()
-            / (img.data.len() as f64 * f64::from(img.max_level));
-        out.frames.push(img);
+        let mut mean = 0.5;
+        for (ch, ((_, gain), ccam)) in channels.iter().zip(&cams).enumerate() {
+            let img = ccam.form_with(
+                &mut rng,
+                |x, y| {
+                    let (px, py) = (x - cx, y - cy);
+                    e * gain * radiance(c * px - s * py + tx, s * px + c * py + ty)
+                },
+                vig,
+            );
+            if ch == meter {
+                mean = img.data.iter().map(|&v| f64::from(v)).sum::<f64>()
+                    / (img.data.len() as f64 * f64::from(img.max_level));
+            }
+            planes[ch].push(img);
+        }
         out.exposures.push(e / E_START);
         out.timestamps.push(t / 20.0);
         e = match &video.program {
@@ -415,5 +499,5 @@ pub fn render_ae_video(cam: &SynthCamera, frames: usize, video: &AeVideo) -> AeS
             }
         };
     }
-    out
+    (planes, out)
 }

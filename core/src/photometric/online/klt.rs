@@ -17,7 +17,7 @@ pub(crate) struct Level {
 }
 
 impl Level {
-    fn new(w: usize, h: usize, data: Vec<f32>) -> Self {
+    pub(crate) fn new(w: usize, h: usize, data: Vec<f32>) -> Self {
         let mut gx = vec![0.0; w * h];
         let mut gy = vec![0.0; w * h];
         for y in 0..h {

@@ -17,11 +17,23 @@
 //!    exposures and radiances ([`super::joint`]), with the gauge fixed explicitly: exposure 0 is
 //!    1 and `f(0.5) = gamma_gauge` (default 0.5, i.e. `f⁻¹(0.5) = 0.5`), so results are unique
 //!    and repeatable; with `gamma_gauge: null` the value is chosen from the data ([`gauge`]).
+//! 4. Optionally (`vignette_center: auto | estimated`; the default keeps DSO's image centre)
+//!    the vignetting centre ([`center`]), followed by a final joint refinement around it.
+//!
+//! Colour input with `channels: rgb` tracks on luma and fits one response per channel with
+//! exposures and vignetting shared ([`channels`]).
 
+mod center;
+mod channels;
 #[cfg(test)]
 mod diag_tests;
+#[cfg(test)]
+mod feature_tests;
 mod gauge;
 pub(crate) mod klt;
+
+pub use center::{CenterMode, CenterReport};
+pub use channels::{ChannelResponse, Channels, photometric_online_rgb};
 
 use serde::{Deserialize, Serialize};
 
@@ -67,6 +79,14 @@ pub struct OnlineParams {
     pub max_iterations: usize,
     /// Scene points kept for the refinement (evenly subsampled above this).
     pub max_points: usize,
+    /// `luma` (default): one response for the luma of the frames; `rgb`: one response per
+    /// colour channel with exposures and vignetting shared (colour frames only).
+    pub channels: Channels,
+    /// Vignetting centre: `fixed` (default) keeps the image centre (DSO's model); `auto`
+    /// estimates it and keeps the estimate when the data constrain it; `estimated` always
+    /// uses the estimate. Experimental: on the synthetic tests the estimate can be biased by
+    /// tens of pixels under mostly translational motion (see `center`).
+    pub vignette_center: CenterMode,
 }
 
 impl Default for OnlineParams {
@@ -84,6 +104,8 @@ impl Default for OnlineParams {
             huber_levels: 3.0,
             max_iterations: 40,
             max_points: 6000,
+            channels: Channels::Luma,
+            vignette_center: CenterMode::Fixed,
         }
     }
 }
@@ -146,6 +168,13 @@ pub struct OnlineResult {
     pub mean_track_length: f64,
     /// Diagnostics of the joint refinement.
     pub diagnostics: FitDiagnostics,
+    /// Whether the vignetting centre was estimated, where it is and how well it is known.
+    #[serde(default)]
+    pub vignette_center: CenterReport,
+    /// With `channels: rgb`: the response of each channel (R, G, B), in the gauge of the shared
+    /// exposures and vignetting; `model.response` is then the green one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub channel_responses: Option<Vec<ChannelResponse>>,
 }
 
 const OFFSETS: [[f32; 2]; 9] = [
@@ -178,6 +207,12 @@ pub fn photometric_online(
     progress: &dyn Progress,
 ) -> CoreResult<OnlineResult> {
     params.validate()?;
+    if params.channels == Channels::Rgb {
+        return Err(CoreError::param(
+            "channels",
+            "rgb needs colour frames; these are single-channel (grey): use luma",
+        ));
+    }
     let (w, h) = check_stack(frames, 3)?;
     let seen = observe(frames, params, w, h, progress)?;
     fit(frames.len(), w, h, seen, params, progress)
@@ -189,8 +224,8 @@ pub(crate) struct Observations {
     pub n_points: u32,
     pub used_tracks: usize,
     pub mean_len: f64,
-    /// Image position of each observation (same order as `obs`; read by the diagnostics).
-    #[cfg_attr(not(test), allow(dead_code))]
+    /// Image position of each observation (same order as `obs`): the vignetting centre fit
+    /// and the colour channels' samples read it.
     pub pos: Vec<[f32; 2]>,
 }
 
@@ -407,11 +442,11 @@ pub(crate) fn fit(
     progress: &dyn Progress,
 ) -> CoreResult<OnlineResult> {
     let Observations {
-        obs,
+        mut obs,
         n_points,
         used_tracks,
         mean_len,
-        ..
+        pos,
     } = seen;
     // Frame-to-frame exposure ratios under the mean response.
     let g0 = ResponseModel::default().inverse(4096);
@@ -496,20 +531,29 @@ pub(crate) fn fit(
             choice.gauge
         }
     };
-    let rep = refine(
-        &obs,
-        &JointConfig {
-            fit_response: true,
-            fit_vignette: params.fit_vignette,
-            fit_exposures: true,
-            gamma_gauge: Some(gamma_gauge),
-            huber,
-            max_iterations: params.max_iterations,
-            label: "refine",
-        },
+    let joint = JointConfig {
+        fit_response: true,
+        fit_vignette: params.fit_vignette,
+        fit_exposures: true,
+        gamma_gauge: Some(gamma_gauge),
+        huber,
+        max_iterations: params.max_iterations,
+        label: "refine",
+    };
+    let mut rep = refine(&obs, &joint, &mut state, progress)?;
+    let center = center::resolve(
+        params.vignette_center,
+        params.fit_vignette,
+        &mut obs,
+        &pos,
         &mut state,
+        (w, h),
+        huber,
         progress,
     )?;
+    if center.estimated {
+        rep = refine(&obs, &joint, &mut state, progress)?;
+    }
     let response = ResponseModel::Emor { c: state.c };
     let monotone = response.is_monotone();
     // A fisheye's tracks stay inside the image circle; the polynomial extrapolated to the dark
@@ -517,6 +561,7 @@ pub(crate) fn fit(
     // in the model) instead of failing the job on an unusable `vignette.png`.
     let vignette = params.fit_vignette.then(|| {
         let mut m = VignetteModel::centered(w, h, state.v);
+        m.center = center.center;
         if m.validate().is_err() {
             m.mask_below(0.01);
         }
@@ -537,5 +582,7 @@ pub(crate) fn fit(
             converged: rep.converged,
             monotone,
         },
+        vignette_center: center,
+        channel_responses: None,
     })
 }

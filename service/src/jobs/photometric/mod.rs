@@ -171,6 +171,27 @@ pub(super) fn decode_all(
     Ok(out)
 }
 
+/// Decode every image into its `[R, G, B]` planes (for `channels: rgb`), keeping the bit
+/// depth; a grey image is refused with its name.
+pub(super) fn decode_all_rgb(
+    input: &JobInput,
+    files: &[&DatasetFile],
+    progress: &dyn Progress,
+) -> Result<Vec<[PhotoImage; 3]>, JobError> {
+    let limits = ImageLimits::default();
+    let mut out = Vec::with_capacity(files.len());
+    for (i, f) in files.iter().enumerate() {
+        progress.check()?;
+        progress.report("decode", i as u64, files.len() as u64);
+        let bytes = (input.load)(f)
+            .map_err(|e| JobError::Transient(format!("storage: cannot read {}: {e}", f.name)))?;
+        let img = PhotoImage::decode_rgb(&bytes, &limits)
+            .map_err(|e| permanent(format!("{}: {e}", f.name)))?;
+        out.push(img);
+    }
+    Ok(out)
+}
+
 pub(super) fn text_artifact(name: &str, text: String) -> Artifact {
     Artifact {
         name: name.into(),

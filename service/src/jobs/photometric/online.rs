@@ -2,13 +2,16 @@
 //! image sequence (Bergmann et al. 2017), or of a video clip ([`super::clip`]).
 
 use caliper_core::Progress;
-use caliper_core::photometric::{OnlineParams, dso, photometric_online, plot};
+use caliper_core::photometric::{
+    Channels, InverseResponse, OnlineParams, dso, photometric_online, photometric_online_rgb, plot,
+};
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
 use super::clip::{ClipFrames, clip_sequence};
 use super::{
-    decode_all, response_artifacts, sorted_files, text_artifact, times_entries, vignette_artifacts,
+    decode_all, decode_all_rgb, permanent, response_artifacts, sorted_files, text_artifact,
+    times_entries, vignette_artifacts,
 };
 use crate::jobs::{
     Artifact, CliContext, Export, JobError, JobInput, JobOutput, JsonParams, Kind, ParamError,
@@ -36,7 +39,7 @@ impl Kind for PhotometricOnline {
     const SCHEMA: &'static str = "caliper.photometric/v1";
     const DATASET: DatasetKind = DatasetKind::Images;
     const ALSO_VIDEO: bool = true;
-    const DESCRIPTION: &'static str = "Online photometric calibration of an auto-exposure image sequence or video clip (Bergmann et al. 2017): response, vignetting and per-frame exposures; DSO pcalib.txt, vignette.png, times.txt.";
+    const DESCRIPTION: &'static str = "Online photometric calibration of an auto-exposure image sequence or video clip (Bergmann et al. 2017): response (one per colour channel with options.channels rgb), vignetting (centre estimated when the data constrain it) and per-frame exposures; DSO pcalib.txt, vignette.png, times.txt.";
     const EXPORTS: &'static [Export] = super::EXPORTS;
     type Params = OnlineJobParams;
     type Cli = JsonParams;
@@ -66,28 +69,59 @@ impl Kind for PhotometricOnline {
         input: &JobInput,
         progress: &dyn Progress,
     ) -> Result<JobOutput, JobError> {
+        let rgb = p.options.channels == Channels::Rgb;
         let clip = match crate::jobs::spool::single_clip(input) {
+            // A clip is decoded on its luma plane only (see `clip`): no colour to fit.
+            Some(_) if rgb => {
+                return Err(JobError::Permanent {
+                    code: "invalid_param",
+                    message: "options.channels: rgb needs image frames (PNG/JPEG/TIFF); video \
+                              clips are fitted on their luma plane, use luma"
+                        .into(),
+                });
+            }
             Some(f) => Some(clip_sequence(input, f, &p.clip, progress)?),
             None => None,
         };
         let files = sorted_files(input);
-        let decoded;
-        let images: &[caliper_core::photometric::PhotoImage] = match &clip {
-            Some(c) => &c.images,
+        let (r, n_frames) = match &clip {
+            Some(c) => (
+                photometric_online(&c.images, &p.options, progress)?,
+                c.images.len(),
+            ),
+            None if rgb => {
+                let frames = decode_all_rgb(input, &files, progress)?;
+                (
+                    photometric_online_rgb(&frames, &p.options, progress)?,
+                    frames.len(),
+                )
+            }
             None => {
-                decoded = decode_all(input, &files, progress)?;
-                &decoded
+                let frames = decode_all(input, &files, progress)?;
+                (
+                    photometric_online(&frames, &p.options, progress)?,
+                    frames.len(),
+                )
             }
         };
-        let r = photometric_online(images, &p.options, progress)?;
         let quality = json!({
-            "frames": images.len(),
+            "frames": n_frames,
             "tracks": r.tracks,
             "mean_track_length": r.mean_track_length,
             "residual_rms_levels": r.diagnostics.residual_rms_levels,
             "converged": r.diagnostics.converged,
+            "vignette_center_estimated": r.vignette_center.estimated,
         });
         let mut artifacts = response_artifacts(&r.model)?;
+        // One DSO pcalib per channel (DSO reads one response; pick the channel it images).
+        for ch in r.channel_responses.iter().flatten() {
+            let inv = InverseResponse::new(ch.inverse_256.clone())
+                .map_err(|e| permanent(format!("channel {}: {e}", ch.channel)))?;
+            artifacts.push(text_artifact(
+                &format!("pcalib_{}.txt", ch.channel),
+                dso::write_pcalib(&inv),
+            ));
+        }
         if let Some(v) = &r.model.vignette {
             artifacts.extend(vignette_artifacts(v)?);
         }
