@@ -34,13 +34,16 @@
 //!
 //! Environment: `CALIPER_BLIND_DATA` (data root), `BLIND_KS` / `BLIND_ITERS` (override
 //! `kernel_size` / `iterations_per_level`, for experiments), `BLIND_DUMP=DIR` (write the sharp,
-//! blurred and restored PNGs of each case).
+//! blurred and restored PNGs of each case), `BLIND_TRACE=1` (also print, per pyramid level, the
+//! error ratio of that level's kernel resampled to full scale and its extent, support and RMS
+//! radius against the truth's: where the estimate goes wrong on the way up).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use caliper_core::deconv::{
-    BlindParams, Plane, Psf, TvParams, blind_deconv, error_ratio_aligned, tv_deconv,
+    BlindParams, Plane, Psf, TvParams, blind_deconv, error_ratio_aligned, estimate_kernel_trace,
+    tv_deconv,
 };
 use caliper_core::io::{ImageLimits, decode_gray8};
 use caliper_core::progress::NoProgress;
@@ -333,6 +336,38 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
     out
 }
 
+/// Extent (bounding box of entries ≥ 5 % of the max), support count and RMS radius.
+fn kernel_stats(k: &Psf) -> String {
+    let max = k.data.iter().copied().fold(0.0, f64::max);
+    let (mut x0, mut x1, mut y0, mut y1, mut n) = (usize::MAX, 0, usize::MAX, 0, 0);
+    let (mut mx, mut my) = (0.0, 0.0);
+    for y in 0..k.height {
+        for x in 0..k.width {
+            let v = k.at(x, y);
+            mx += v * x as f64;
+            my += v * y as f64;
+            if v >= 0.05 * max {
+                (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
+                n += 1;
+            }
+        }
+    }
+    let mut r2 = 0.0;
+    for y in 0..k.height {
+        for x in 0..k.width {
+            r2 += k.at(x, y) * ((x as f64 - mx).powi(2) + (y as f64 - my).powi(2));
+        }
+    }
+    format!(
+        "extent {:>2}x{:<2} support {:>3} rms {:5.2} peak {:.3}",
+        x1 + 1 - x0,
+        y1 + 1 - y0,
+        n,
+        r2.sqrt(),
+        max
+    )
+}
+
 fn print_kernel(k: &Psf) {
     let max = k.data.iter().copied().fold(0.0, f64::max);
     for y in 0..k.height {
@@ -400,6 +435,17 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
                 let g = p.to_gray();
                 let _ = image::GrayImage::from_raw(g.width, g.height, g.data)
                     .map(|i| i.save(format!("{dir}/{stem}_{tag}.png")));
+            }
+        }
+        if std::env::var("BLIND_TRACE").is_ok() {
+            let (_, levels) =
+                estimate_kernel_trace(&case.blurred, &params, &NoProgress).expect("trace");
+            eprintln!("  truth {}", kernel_stats(&case.psf));
+            for (i, k) in levels.iter().enumerate() {
+                let img = tv_deconv(&case.blurred, k, &params.final_tv, &NoProgress).expect("tv");
+                let r = error_ratio_aligned(&case.sharp, &img, &truth, BORDER, MAX_SHIFT)
+                    .expect("ratio");
+                eprintln!("  level {i}: ratio {r:7.2}  {}", kernel_stats(k));
             }
         }
         if verbose {

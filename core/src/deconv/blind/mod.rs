@@ -131,8 +131,9 @@ const LEVEL_RATIO: f64 = std::f64::consts::FRAC_1_SQRT_2;
 ///   the mass, and the rest is normalised; λ ← max(λ/1.1, 10⁻⁴);
 /// * the kernel is re-centred on its centroid after every level, so that it stays inside its
 ///   window and the deblurred image is not shifted;
-/// * the full-resolution level is estimated with a stronger kernel regulariser
-///   ([`FINEST_REG_FACTOR`] × γ) and cleaning threshold ([`FINEST_KERNEL_THRESHOLD`]). At
+/// * the full-resolution level is estimated with a weaker image prior ([`FINEST_LAMBDA_FACTOR`]
+///   × λ), a stronger kernel regulariser ([`FINEST_REG_FACTOR`] × γ) and cleaning threshold
+///   ([`FINEST_KERNEL_THRESHOLD`]). At
 ///   σ = 0.01 the finest level with the coarse settings fits noise into the kernel (a speckle
 ///   carpet that the connected-component test cannot remove because it is all connected; error
 ///   ratios of 10–100 on the benchmark set). Skipping the level instead (the kernel of the √½
@@ -152,6 +153,28 @@ pub fn estimate_kernel(
     img: &Plane,
     params: &BlindParams,
     progress: &dyn Progress,
+) -> CoreResult<Psf> {
+    estimate_kernel_traced(img, params, progress, None)
+}
+
+/// [`estimate_kernel`], also returning the kernel of every level resampled to full scale (for
+/// the evaluation harness's diagnostics).
+#[doc(hidden)]
+pub fn estimate_kernel_trace(
+    img: &Plane,
+    params: &BlindParams,
+    progress: &dyn Progress,
+) -> CoreResult<(Psf, Vec<Psf>)> {
+    let mut trace = Vec::new();
+    let k = estimate_kernel_traced(img, params, progress, Some(&mut trace))?;
+    Ok((k, trace))
+}
+
+fn estimate_kernel_traced(
+    img: &Plane,
+    params: &BlindParams,
+    progress: &dyn Progress,
+    mut trace: Option<&mut Vec<Psf>>,
 ) -> CoreResult<Psf> {
     params.validate()?;
     super::check_inputs(img, &Psf::identity())?;
@@ -198,6 +221,11 @@ pub fn estimate_kernel(
             li + 1 == levels,
         )?;
         recentre(&mut kernel, size);
+        if let Some(t) = trace.as_deref_mut() {
+            let mut up = resize(&kernel, size, size, ks, ks);
+            clean_kernel(&mut up, ks, 0.0);
+            t.push(Psf::from_weights(ks, ks, up)?);
+        }
     }
     Psf::from_weights(k_size, k_size, kernel)
 }
@@ -219,8 +247,19 @@ const FINEST_KERNEL_THRESHOLD: f64 = 0.2;
 /// pyramid (each √½ step halves its variance), so the kernel step needs more damping for the
 /// same trust in its data (benchmark: 1× leaves 24 of 32 cases at ratio ≤ 3 with a 15 %
 /// threshold and 5 % at the coarse levels, 4× 25, 10× 29; with the final thresholds 10× 32
-/// and 20× 31).
-const FINEST_REG_FACTOR: f64 = 10.0;
+/// and 20× 31). Re-measured on the camera-shake harness (`examples/blind_eval.rs`, TUNE split)
+/// together with [`FINEST_LAMBDA_FACTOR`]: 10× 16 of 44 at ratio ≤ 3 (median 5.5), 30× 17 of 44
+/// (median 5.2); EVAL 14 of 48 against 13 before either change.
+const FINEST_REG_FACTOR: f64 = 30.0;
+
+/// Factor on `lambda_grad` at full resolution. The L0 latent is a cartoon of step edges; the
+/// kernel step then has to explain the photo's own soft edges (optics, resampling) and grows the
+/// kernel by that edge profile while the strong finest-level cleaning shortens it — the
+/// diagnostic trace (`BLIND_TRACE=1` in `examples/blind_eval.rs`) showed the support shrinking
+/// from ~130 to ~50 entries at the last level on failing cases. A weaker prior there keeps ramps
+/// in the latent (Levin et al. 2009: the sharper-than-true latent is what biases MAP kernels).
+/// Camera-shake harness, TUNE split: 1 → median 5.9, 0.25 → 5.5 (with 10× γ), 0.1 → 6.5.
+const FINEST_LAMBDA_FACTOR: f64 = 0.25;
 
 /// One pyramid level of [`estimate_kernel`]; `finest` selects the full-resolution settings.
 fn estimate_level(
@@ -259,7 +298,11 @@ fn estimate_level(
             .collect::<Vec<f32>>()
     };
     let dpow = gradient_power(&fft);
-    let mut lambda = params.lambda_grad;
+    let mut lambda = if finest {
+        params.lambda_grad * FINEST_LAMBDA_FACTOR
+    } else {
+        params.lambda_grad
+    };
     let mut threshold: Option<f32> = None;
     for it in 0..params.iterations_per_level {
         progress.check()?;
