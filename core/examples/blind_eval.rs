@@ -42,8 +42,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use caliper_core::deconv::{
-    BlindParams, Plane, Psf, TvParams, blind_deconv, error_ratio_aligned, estimate_kernel_trace,
-    tv_deconv,
+    BlindParams, Plane, Psf, TvParams, blind_deconv, error_ratio_aligned, estimate_blur_extent,
+    estimate_kernel_trace, gradient_autocorrelation, tv_deconv,
 };
 use caliper_core::io::{ImageLimits, decode_gray8};
 use caliper_core::progress::NoProgress;
@@ -409,6 +409,14 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         if only.is_some_and(|o| !case.name.contains(o)) {
             continue;
         }
+        let mut params = params.clone();
+        if let Some(f) = std::env::var("BLIND_ORACLE")
+            .ok()
+            .and_then(|v| v.parse::<f64>().ok())
+        {
+            // Experiment: window from the true kernel extent (upper bound for size estimation).
+            params.kernel_size = Some(((f * case.psf.width as f64).round() as usize) | 1);
+        }
         let t = Instant::now();
         let out = blind_deconv(&case.blurred, &params, &NoProgress).expect("blind");
         let dt = t.elapsed().as_secs_f64();
@@ -541,6 +549,53 @@ fn time() {
     );
 }
 
+/// Blur-extent estimate against the truth's bounding box (entries >= 5 % of the max).
+fn sizes(split: Split) {
+    let root = PathBuf::from(
+        std::env::var("CALIPER_BLIND_DATA").unwrap_or_else(|_| "../shared/data".into()),
+    );
+    let mut rel = Vec::new();
+    for case in cases(&root, split) {
+        let k = &case.psf;
+        let max = k.data.iter().copied().fold(0.0, f64::max);
+        let (mut x0, mut x1, mut y0, mut y1) = (usize::MAX, 0, usize::MAX, 0);
+        for y in 0..k.height {
+            for x in 0..k.width {
+                if k.at(x, y) >= 0.05 * max {
+                    (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
+                }
+            }
+        }
+        let truth = (x1 + 1 - x0).max(y1 + 1 - y0) as f64;
+        let est = estimate_blur_extent(&case.blurred, &NoProgress).expect("size");
+        let e = est.unwrap_or(0.0);
+        if std::env::var("BLIND_PROFILES").is_ok() {
+            let pr = gradient_autocorrelation(&case.blurred, 80, &NoProgress).expect("r");
+            for r in &pr {
+                let v: Vec<String> = r.iter().map(|v| format!("{v:.4}")).collect();
+                eprintln!("P {} {truth} {}", case.name, v.join(" "));
+            }
+        }
+        rel.push(e / truth);
+        println!(
+            "{:<34} truth {truth:>3}  est {e:>5.1}  ratio {:.2}",
+            case.name,
+            e / truth
+        );
+    }
+    rel.sort_by(f64::total_cmp);
+    let n = rel.len();
+    let within = |t: f64| rel.iter().filter(|&&r| (r - 1.0).abs() <= t).count();
+    println!(
+        "{n} cases: est/truth median {:.2}, 10-90 % {:.2}-{:.2}, within 20 % {}, within 35 % {}",
+        rel[n / 2],
+        rel[n / 10],
+        rel[n * 9 / 10],
+        within(0.2),
+        within(0.35)
+    );
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let only = args
@@ -553,6 +608,8 @@ fn main() {
         Some("tune") => run(Split::Tune, only, verbose),
         Some("eval") => run(Split::Eval, only, verbose),
         Some("time") => time(),
+        Some("size") => sizes(Split::Tune),
+        Some("size-eval") => sizes(Split::Eval),
         _ => eprintln!("usage: blind_eval tune|eval|time [--only TEXT] [-v]"),
     }
 }

@@ -5,6 +5,7 @@ use serde::{Deserialize, Serialize};
 
 mod kernel;
 mod latent;
+mod size;
 
 use super::fft::Fft2;
 use super::ops::grad;
@@ -17,6 +18,7 @@ use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
 use kernel::{clean_kernel, kernel_step, recentre};
 use latent::{l0_restore, salient_threshold};
+pub use size::{estimate_blur_extent, gradient_autocorrelation};
 
 /// Parameters of [`blind_deconv`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -111,6 +113,32 @@ pub fn blind_deconv(
     Ok(BlindOutput { image, psf })
 }
 
+/// The kernel window when none is given: [`WINDOW_FACTOR`] × the blur extent estimated by
+/// [`estimate_blur_extent`], within [`MIN_WINDOW`] and a third of the shorter image side
+/// (the fixed default of [`BlindParams::kernel_size_for`] when no blur lobe is found). A
+/// fixed window is either too small for long shakes (the path is clipped) or too large for
+/// short ones (the coarsest level no longer resolves them and the kernel step has more
+/// unknowns to fit noise with); the pyramid depth follows the window so that the coarsest
+/// level always sees a ~5 px kernel.
+fn adaptive_kernel_size(img: &Plane, progress: &dyn Progress) -> CoreResult<usize> {
+    let fixed = BlindParams::default().kernel_size_for(img.width, img.height)?;
+    let Some(extent) = estimate_blur_extent(img, progress)? else {
+        return Ok(fixed);
+    };
+    let max = (img.width.min(img.height) / 3) | 1;
+    let ks = ((extent * WINDOW_FACTOR).round() as usize) | 1;
+    Ok(ks.clamp(MIN_WINDOW.min(max), max.max(3)))
+}
+
+/// Window / estimated extent: estimates are within −33 %/+58 % of the truth on 80 % of the
+/// TUNE cases, and an underestimate clips the kernel while an overestimate costs time and
+/// accuracy (TUNE split at ratio ≤ 3: 1.2× 14 of 44, 1.4× 20, 1.7× 18; the fixed 31 px
+/// window 17, a window of 1.3× the true kernel side 19).
+const WINDOW_FACTOR: f64 = 1.4;
+
+/// The smallest automatic window (px).
+const MIN_WINDOW: usize = 15;
+
 /// Pyramid step between levels (Pan et al. use √½).
 const LEVEL_RATIO: f64 = std::f64::consts::FRAC_1_SQRT_2;
 
@@ -178,7 +206,10 @@ fn estimate_kernel_traced(
 ) -> CoreResult<Psf> {
     params.validate()?;
     super::check_inputs(img, &Psf::identity())?;
-    let ks = params.kernel_size_for(img.width, img.height)?;
+    let ks = match params.kernel_size {
+        Some(_) => params.kernel_size_for(img.width, img.height)?,
+        None => adaptive_kernel_size(img, progress)?,
+    };
     let levels = ((5.0 / ks as f64).ln() / LEVEL_RATIO.ln()).floor().max(0.0) as usize + 1;
     let sizes: Vec<usize> = (0..levels)
         .rev()
