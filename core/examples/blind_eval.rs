@@ -549,6 +549,73 @@ fn time() {
     );
 }
 
+/// Blind selection criteria of a restoration `x` with kernel `k` of `y`: mean squared reblur
+/// residual over the pixels whose kernel footprint is inside, mean |∇x| (L1), share of |∇x| > 0.02.
+fn criteria(y: &Plane, x: &Plane, k: &Psf) -> (f64, f64, f64) {
+    let (w, h) = (y.width, y.height);
+    let (cx, cy) = (k.width / 2, k.height / 2);
+    let m = k.width.max(k.height);
+    let (mut res, mut n) = (0.0, 0usize);
+    for py in m..h - m {
+        for px in m..w - m {
+            let mut acc = 0.0;
+            for ky in 0..k.height {
+                for kx in 0..k.width {
+                    let v = k.at(kx, ky);
+                    if v > 0.0 {
+                        acc += v * f64::from(x.at(px + cx - kx, py + cy - ky));
+                    }
+                }
+            }
+            res += (acc - f64::from(y.at(px, py))).powi(2);
+            n += 1;
+        }
+    }
+    let (mut tv, mut l0, mut g) = (0.0, 0usize, 0usize);
+    for py in BORDER..h - BORDER {
+        for px in BORDER..w - BORDER {
+            let gx = f64::from(x.at(px + 1, py) - x.at(px, py));
+            let gy = f64::from(x.at(px, py + 1) - x.at(px, py));
+            let mag = gx.hypot(gy);
+            tv += gx.abs() + gy.abs();
+            l0 += usize::from(mag > 0.02);
+            g += 1;
+        }
+    }
+    (res / n as f64, tv / g as f64, l0 as f64 / g as f64)
+}
+
+/// Experiment: several starts per case with their true ratios and blind criteria.
+fn starts(split: Split) {
+    let root = PathBuf::from(
+        std::env::var("CALIPER_BLIND_DATA").unwrap_or_else(|_| "../shared/data".into()),
+    );
+    for case in cases(&root, split) {
+        let truth =
+            tv_deconv(&case.blurred, &case.psf, &TvParams::default(), &NoProgress).expect("tv");
+        let lam = caliper_core::deconv::auto_tv_lambda(&case.blurred);
+        let est = estimate_blur_extent(&case.blurred, &NoProgress)
+            .expect("size")
+            .unwrap_or(0.0);
+        for ks in [None, Some(21), Some(31), Some(45)] {
+            let params = BlindParams {
+                kernel_size: ks,
+                ..BlindParams::default()
+            };
+            let out = blind_deconv(&case.blurred, &params, &NoProgress).expect("blind");
+            let r = error_ratio_aligned(&case.sharp, &out.image, &truth, BORDER, MAX_SHIFT)
+                .expect("ratio");
+            let (res, tv, l0) = criteria(&case.blurred, &out.image, &out.psf);
+            println!(
+                "C {} {} {} {est} {r:.4} {res:.6e} {tv:.6e} {l0:.6e} {lam:.6e}",
+                case.name,
+                ks.unwrap_or(0),
+                out.psf.width
+            );
+        }
+    }
+}
+
 /// Blur-extent estimate against the truth's bounding box (entries >= 5 % of the max).
 fn sizes(split: Split) {
     let root = PathBuf::from(
@@ -609,6 +676,7 @@ fn main() {
         Some("eval") => run(Split::Eval, only, verbose),
         Some("time") => time(),
         Some("size") => sizes(Split::Tune),
+        Some("starts") => starts(Split::Tune),
         Some("size-eval") => sizes(Split::Eval),
         _ => eprintln!("usage: blind_eval tune|eval|time [--only TEXT] [-v]"),
     }
