@@ -2,8 +2,12 @@
 //! photos on every run so that it can be published as a command and cannot be over-fitted by
 //! editing images.
 //!
+//! (Over 600 lines: one harness with its generators, scoring and the diagnostic modes `size` and
+//! `starts` in one place; splitting them would scatter the recipe the numbers depend on.)
+//!
 //! ```text
 //! cargo run -p caliper-core --release --example blind_eval -- tune|eval|time [--only TEXT] [-v]
+//! cargo run -p caliper-core --release --example blind_eval -- size|size-eval|starts
 //! ```
 //!
 //! Sharp images come from `CALIPER_BLIND_DATA` (default `../shared/data`, i.e. the shared data
@@ -33,7 +37,9 @@
 //! `time` measures one 255² case and one ~1 Mpx image (1155×866, 31 px shake kernel).
 //!
 //! Environment: `CALIPER_BLIND_DATA` (data root), `BLIND_KS` / `BLIND_ITERS` (override
-//! `kernel_size` / `iterations_per_level`, for experiments), `BLIND_DUMP=DIR` (write the sharp,
+//! `kernel_size` / `iterations_per_level`, for experiments), `BLIND_ORACLE=F` (window = F × the
+//! true kernel side: the ceiling of size estimation), `BLIND_PROFILES=1` (with `size`: print the
+//! gradient autocorrelation profiles to stderr), `BLIND_DUMP=DIR` (write the sharp,
 //! blurred and restored PNGs of each case), `BLIND_TRACE=1` (also print, per pyramid level, the
 //! error ratio of that level's kernel resampled to full scale and its extent, support and RMS
 //! radius against the truth's: where the estimate goes wrong on the way up).
@@ -675,9 +681,11 @@ fn main() {
         Some("tune") => run(Split::Tune, only, verbose),
         Some("eval") => run(Split::Eval, only, verbose),
         Some("time") => time(),
+        // `size`: blur-extent estimate vs truth; `starts`: several windows per TUNE case with
+        // their true ratios and blind selection criteria (for offline analysis).
         Some("size") => sizes(Split::Tune),
         Some("starts") => starts(Split::Tune),
         Some("size-eval") => sizes(Split::Eval),
-        _ => eprintln!("usage: blind_eval tune|eval|time [--only TEXT] [-v]"),
+        _ => eprintln!("usage: blind_eval tune|eval|time|size|size-eval|starts [--only TEXT] [-v]"),
     }
 }

@@ -26,7 +26,9 @@ pub use size::{estimate_blur_extent, gradient_autocorrelation};
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 pub struct BlindParams {
     /// Kernel side in px (odd, 3–[`MAX_PSF_SIZE`]); should exceed the blur extent.
-    /// Default (`null`): 31, or a third of the shorter image side if smaller.
+    /// Default (`null`): 1.4 × the blur extent estimated by [`estimate_blur_extent`], at least
+    /// 15 and at most a third of the shorter image side; 31 (or that third) when no blur is
+    /// measurable. [`BlindParams::kernel_size_for`] gives the fixed fallback.
     pub kernel_size: Option<usize>,
     /// Alternations of latent image and kernel per pyramid level (default 5, as Pan et al.).
     pub iterations_per_level: usize,
@@ -147,6 +149,7 @@ const LEVEL_RATIO: f64 = std::f64::consts::FRAC_1_SQRT_2;
 /// gradient prior", CVPR 2014 / "L0-regularized intensity and gradient prior for deblurring text
 /// images and beyond", IEEE TPAMI 39(2), 2017, with the gradient term only (natural images):
 ///
+/// * the kernel window from [`estimate_blur_extent`] unless `kernel_size` is given;
 /// * a pyramid with ratio √½ from a ~5 px kernel, the kernel upsampled from level to level,
 ///   starting from a 2-px segment;
 /// * per level, alternately: the latent image `x = argmin ‖k ⊛ x − y‖² + λ‖∇x‖₀` by half-quadratic
