@@ -2,8 +2,12 @@
 //! photos on every run so that it can be published as a command and cannot be over-fitted by
 //! editing images.
 //!
+//! (Over 600 lines: one harness with its generators, scoring and the diagnostic modes `size` and
+//! `starts` in one place; splitting them would scatter the recipe the numbers depend on.)
+//!
 //! ```text
 //! cargo run -p caliper-core --release --example blind_eval -- tune|eval|time [--only TEXT] [-v]
+//! cargo run -p caliper-core --release --example blind_eval -- size|size-eval|starts
 //! ```
 //!
 //! Sharp images come from `CALIPER_BLIND_DATA` (default `../shared/data`, i.e. the shared data
@@ -33,14 +37,19 @@
 //! `time` measures one 255² case and one ~1 Mpx image (1155×866, 31 px shake kernel).
 //!
 //! Environment: `CALIPER_BLIND_DATA` (data root), `BLIND_KS` / `BLIND_ITERS` (override
-//! `kernel_size` / `iterations_per_level`, for experiments), `BLIND_DUMP=DIR` (write the sharp,
-//! blurred and restored PNGs of each case).
+//! `kernel_size` / `iterations_per_level`, for experiments), `BLIND_ORACLE=F` (window = F × the
+//! true kernel side: the ceiling of size estimation), `BLIND_PROFILES=1` (with `size`: print the
+//! gradient autocorrelation profiles to stderr), `BLIND_DUMP=DIR` (write the sharp,
+//! blurred and restored PNGs of each case), `BLIND_TRACE=1` (also print, per pyramid level, the
+//! error ratio of that level's kernel resampled to full scale and its extent, support and RMS
+//! radius against the truth's: where the estimate goes wrong on the way up).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use caliper_core::deconv::{
-    BlindParams, Plane, Psf, TvParams, blind_deconv, error_ratio_aligned, tv_deconv,
+    BlindParams, Plane, Psf, TvParams, blind_deconv, error_ratio_aligned, estimate_blur_extent,
+    estimate_kernel_trace, gradient_autocorrelation, tv_deconv,
 };
 use caliper_core::io::{ImageLimits, decode_gray8};
 use caliper_core::progress::NoProgress;
@@ -333,6 +342,38 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
     out
 }
 
+/// Extent (bounding box of entries ≥ 5 % of the max), support count and RMS radius.
+fn kernel_stats(k: &Psf) -> String {
+    let max = k.data.iter().copied().fold(0.0, f64::max);
+    let (mut x0, mut x1, mut y0, mut y1, mut n) = (usize::MAX, 0, usize::MAX, 0, 0);
+    let (mut mx, mut my) = (0.0, 0.0);
+    for y in 0..k.height {
+        for x in 0..k.width {
+            let v = k.at(x, y);
+            mx += v * x as f64;
+            my += v * y as f64;
+            if v >= 0.05 * max {
+                (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
+                n += 1;
+            }
+        }
+    }
+    let mut r2 = 0.0;
+    for y in 0..k.height {
+        for x in 0..k.width {
+            r2 += k.at(x, y) * ((x as f64 - mx).powi(2) + (y as f64 - my).powi(2));
+        }
+    }
+    format!(
+        "extent {:>2}x{:<2} support {:>3} rms {:5.2} peak {:.3}",
+        x1 + 1 - x0,
+        y1 + 1 - y0,
+        n,
+        r2.sqrt(),
+        max
+    )
+}
+
 fn print_kernel(k: &Psf) {
     let max = k.data.iter().copied().fold(0.0, f64::max);
     for y in 0..k.height {
@@ -374,6 +415,14 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         if only.is_some_and(|o| !case.name.contains(o)) {
             continue;
         }
+        let mut params = params.clone();
+        if let Some(f) = std::env::var("BLIND_ORACLE")
+            .ok()
+            .and_then(|v| v.parse::<f64>().ok())
+        {
+            // Experiment: window from the true kernel extent (upper bound for size estimation).
+            params.kernel_size = Some(((f * case.psf.width as f64).round() as usize) | 1);
+        }
         let t = Instant::now();
         let out = blind_deconv(&case.blurred, &params, &NoProgress).expect("blind");
         let dt = t.elapsed().as_secs_f64();
@@ -400,6 +449,17 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
                 let g = p.to_gray();
                 let _ = image::GrayImage::from_raw(g.width, g.height, g.data)
                     .map(|i| i.save(format!("{dir}/{stem}_{tag}.png")));
+            }
+        }
+        if std::env::var("BLIND_TRACE").is_ok() {
+            let (_, levels) =
+                estimate_kernel_trace(&case.blurred, &params, &NoProgress).expect("trace");
+            eprintln!("  truth {}", kernel_stats(&case.psf));
+            for (i, k) in levels.iter().enumerate() {
+                let img = tv_deconv(&case.blurred, k, &params.final_tv, &NoProgress).expect("tv");
+                let r = error_ratio_aligned(&case.sharp, &img, &truth, BORDER, MAX_SHIFT)
+                    .expect("ratio");
+                eprintln!("  level {i}: ratio {r:7.2}  {}", kernel_stats(k));
             }
         }
         if verbose {
@@ -495,6 +555,120 @@ fn time() {
     );
 }
 
+/// Blind selection criteria of a restoration `x` with kernel `k` of `y`: mean squared reblur
+/// residual over the pixels whose kernel footprint is inside, mean |∇x| (L1), share of |∇x| > 0.02.
+fn criteria(y: &Plane, x: &Plane, k: &Psf) -> (f64, f64, f64) {
+    let (w, h) = (y.width, y.height);
+    let (cx, cy) = (k.width / 2, k.height / 2);
+    let m = k.width.max(k.height);
+    let (mut res, mut n) = (0.0, 0usize);
+    for py in m..h - m {
+        for px in m..w - m {
+            let mut acc = 0.0;
+            for ky in 0..k.height {
+                for kx in 0..k.width {
+                    let v = k.at(kx, ky);
+                    if v > 0.0 {
+                        acc += v * f64::from(x.at(px + cx - kx, py + cy - ky));
+                    }
+                }
+            }
+            res += (acc - f64::from(y.at(px, py))).powi(2);
+            n += 1;
+        }
+    }
+    let (mut tv, mut l0, mut g) = (0.0, 0usize, 0usize);
+    for py in BORDER..h - BORDER {
+        for px in BORDER..w - BORDER {
+            let gx = f64::from(x.at(px + 1, py) - x.at(px, py));
+            let gy = f64::from(x.at(px, py + 1) - x.at(px, py));
+            let mag = gx.hypot(gy);
+            tv += gx.abs() + gy.abs();
+            l0 += usize::from(mag > 0.02);
+            g += 1;
+        }
+    }
+    (res / n as f64, tv / g as f64, l0 as f64 / g as f64)
+}
+
+/// Experiment: several starts per case with their true ratios and blind criteria.
+fn starts(split: Split) {
+    let root = PathBuf::from(
+        std::env::var("CALIPER_BLIND_DATA").unwrap_or_else(|_| "../shared/data".into()),
+    );
+    for case in cases(&root, split) {
+        let truth =
+            tv_deconv(&case.blurred, &case.psf, &TvParams::default(), &NoProgress).expect("tv");
+        let lam = caliper_core::deconv::auto_tv_lambda(&case.blurred);
+        let est = estimate_blur_extent(&case.blurred, &NoProgress)
+            .expect("size")
+            .unwrap_or(0.0);
+        for ks in [None, Some(21), Some(31), Some(45)] {
+            let params = BlindParams {
+                kernel_size: ks,
+                ..BlindParams::default()
+            };
+            let out = blind_deconv(&case.blurred, &params, &NoProgress).expect("blind");
+            let r = error_ratio_aligned(&case.sharp, &out.image, &truth, BORDER, MAX_SHIFT)
+                .expect("ratio");
+            let (res, tv, l0) = criteria(&case.blurred, &out.image, &out.psf);
+            println!(
+                "C {} {} {} {est} {r:.4} {res:.6e} {tv:.6e} {l0:.6e} {lam:.6e}",
+                case.name,
+                ks.unwrap_or(0),
+                out.psf.width
+            );
+        }
+    }
+}
+
+/// Blur-extent estimate against the truth's bounding box (entries >= 5 % of the max).
+fn sizes(split: Split) {
+    let root = PathBuf::from(
+        std::env::var("CALIPER_BLIND_DATA").unwrap_or_else(|_| "../shared/data".into()),
+    );
+    let mut rel = Vec::new();
+    for case in cases(&root, split) {
+        let k = &case.psf;
+        let max = k.data.iter().copied().fold(0.0, f64::max);
+        let (mut x0, mut x1, mut y0, mut y1) = (usize::MAX, 0, usize::MAX, 0);
+        for y in 0..k.height {
+            for x in 0..k.width {
+                if k.at(x, y) >= 0.05 * max {
+                    (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
+                }
+            }
+        }
+        let truth = (x1 + 1 - x0).max(y1 + 1 - y0) as f64;
+        let est = estimate_blur_extent(&case.blurred, &NoProgress).expect("size");
+        let e = est.unwrap_or(0.0);
+        if std::env::var("BLIND_PROFILES").is_ok() {
+            let pr = gradient_autocorrelation(&case.blurred, 80, &NoProgress).expect("r");
+            for r in &pr {
+                let v: Vec<String> = r.iter().map(|v| format!("{v:.4}")).collect();
+                eprintln!("P {} {truth} {}", case.name, v.join(" "));
+            }
+        }
+        rel.push(e / truth);
+        println!(
+            "{:<34} truth {truth:>3}  est {e:>5.1}  ratio {:.2}",
+            case.name,
+            e / truth
+        );
+    }
+    rel.sort_by(f64::total_cmp);
+    let n = rel.len();
+    let within = |t: f64| rel.iter().filter(|&&r| (r - 1.0).abs() <= t).count();
+    println!(
+        "{n} cases: est/truth median {:.2}, 10-90 % {:.2}-{:.2}, within 20 % {}, within 35 % {}",
+        rel[n / 2],
+        rel[n / 10],
+        rel[n * 9 / 10],
+        within(0.2),
+        within(0.35)
+    );
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let only = args
@@ -507,6 +681,11 @@ fn main() {
         Some("tune") => run(Split::Tune, only, verbose),
         Some("eval") => run(Split::Eval, only, verbose),
         Some("time") => time(),
-        _ => eprintln!("usage: blind_eval tune|eval|time [--only TEXT] [-v]"),
+        // `size`: blur-extent estimate vs truth; `starts`: several windows per TUNE case with
+        // their true ratios and blind selection criteria (for offline analysis).
+        Some("size") => sizes(Split::Tune),
+        Some("starts") => starts(Split::Tune),
+        Some("size-eval") => sizes(Split::Eval),
+        _ => eprintln!("usage: blind_eval tune|eval|time|size|size-eval|starts [--only TEXT] [-v]"),
     }
 }

@@ -41,7 +41,10 @@ mod tests;
 #[cfg(test)]
 mod tests_solvers;
 
-pub use blind::{BlindOutput, BlindParams, blind_deconv, estimate_kernel};
+pub use blind::{
+    BlindOutput, BlindParams, blind_deconv, estimate_blur_extent, estimate_kernel,
+    estimate_kernel_trace, gradient_autocorrelation,
+};
 pub use blind_rl::blind_richardson_lucy;
 pub use boundary::{PadLayout, reflect};
 pub use color::{ChannelLayout, SampleDepth, SplitImage, merge_image, split_image};

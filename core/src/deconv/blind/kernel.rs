@@ -19,7 +19,7 @@ fn window(plane: &[f32], fft: &Fft2, ks: usize) -> Vec<f64> {
     out
 }
 
-/// `argmin_k Σ_d ‖M(L_d ⊛ k − B_d)‖² + γ‖k‖²` over `ks × ks` kernels, by conjugate gradients on
+/// `argmin_k Σ_d ‖M(L_d ⊛ k − B_d)‖² + Σ_i γ_i k_i²` over `ks × ks` kernels, by conjugate gradients on
 /// the normal equations (Pan et al.'s `estimate_psf`, 20 iterations from the previous kernel).
 ///
 /// `M` keeps the pixels of the photo: the mirrored, tapered margin is not a blurred image of
@@ -32,7 +32,7 @@ pub(super) fn kernel_step(
     blurred: [&[f32]; 2],
     mask: &[f32],
     ks: usize,
-    gamma: f64,
+    gamma: &[f64],
     start: &[f64],
 ) -> Vec<f64> {
     let scale = 1.0 / (fft.height * fft.width) as f32;
@@ -64,8 +64,8 @@ pub(super) fn kernel_step(
             fft.inverse(&p)
         };
         let mut out = adjoint([conv(0), conv(1)]);
-        for (o, v) in out.iter_mut().zip(k) {
-            *o += gamma * v;
+        for ((o, v), g) in out.iter_mut().zip(k).zip(gamma) {
+            *o += g * v;
         }
         out
     };
@@ -216,7 +216,8 @@ mod tests {
         let (lx, ly) = (fft.forward(&lx), fft.forward(&ly));
         let mask = layout.mask();
         let start = vec![1.0 / (ks * ks) as f64; ks * ks];
-        let mut k = kernel_step(&fft, [&lx, &ly], [&bx, &by], &mask, ks, 0.01, &start);
+        let gamma = vec![0.01; ks * ks];
+        let mut k = kernel_step(&fft, [&lx, &ly], [&bx, &by], &mask, ks, &gamma, &start);
         clean_kernel(&mut k, ks, 0.05);
         let off = (ks - truth.width) / 2;
         let mut err = 0.0f64;
