@@ -52,7 +52,9 @@ pub struct DeblurParams {
     pub nsr: Option<f64>,
     /// TV weight for `tv`, `blind` and `gyro` (default: from the estimated noise).
     pub tv_lambda: Option<f64>,
-    /// Kernel side for `blind` / `blind_rl` (odd; default 31 or a third of the shorter side).
+    /// Kernel side for `blind` / `blind_rl` (odd; default for `blind`: 1.4× the blur extent
+    /// estimated from the image, 15 px to a third of the shorter side; for `blind_rl`, and for
+    /// `blind` when no extent is found: 31 or a third of the shorter side).
     pub kernel_size: Option<usize>,
     /// Gyro trace, exposure and intrinsics for `gyro`.
     pub gyro: Option<GyroPsfParams>,
