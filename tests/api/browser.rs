@@ -267,6 +267,14 @@ async fn dashboard_runs_a_calibration_end_to_end() {
         Duration::from_secs(90),
     )
     .await;
+    // Progress reaches 100 while the result is still being filed: the status follows.
+    wait_js(
+        &c,
+        "(() => { const s = document.querySelector('#job-table .status'); \
+         return s && s.textContent.trim() !== 'running' && s.textContent.trim(); })()",
+        Duration::from_secs(30),
+    )
+    .await;
     assert_eq!(text(&c, "#job-table .status").await, "succeeded");
     wait_css(&c, "#job-result .bar-chart").await;
     let (_, result) = s.get_json(&format!("/v1/jobs/{job_id}/result")).await;
