@@ -1,9 +1,10 @@
+//! Why one file of over 600 lines: the harness, its generators, its scoring and the diagnostic
+//! modes `size` and `starts` are one recipe that the published numbers depend on; split, the
+//! recipe would be scattered.
+//!
 //! Held-out evaluation of blind deblurring (`estimate_kernel` + TV), regenerated from sharp
 //! photos on every run so that it can be published as a command and cannot be over-fitted by
 //! editing images.
-//!
-//! (Over 600 lines: one harness with its generators, scoring and the diagnostic modes `size` and
-//! `starts` in one place; splitting them would scatter the recipe the numbers depend on.)
 //!
 //! ```text
 //! cargo run -p caliper-core --release --example blind_eval -- tune|eval|time [--only TEXT] [-v]

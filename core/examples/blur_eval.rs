@@ -1,7 +1,9 @@
+//! Why one file of just over 600 lines: the generators, the degradations and the scoring of one
+//! experiment are one recipe that the published numbers depend on; split, it would be scattered.
+//!
 //! Labelled blur evaluation that regenerates itself from sharp photos, so that it can be
 //! published as a command rather than as a pile of images, and cannot be over-fitted by
-//! editing images. (Just over 600 lines: the generators, the degradations and the scoring of
-//! one experiment read best as one recipe.)
+//! editing images.
 //!
 //! Every sharp source is reduced to a long side of at most 640 px and turned into
 //! - 3 **sharp** copies,

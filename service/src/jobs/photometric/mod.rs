@@ -157,18 +157,7 @@ pub(super) fn decode_all(
     files: &[&DatasetFile],
     progress: &dyn Progress,
 ) -> Result<Vec<PhotoImage>, JobError> {
-    let limits = ImageLimits::default();
-    let mut out = Vec::with_capacity(files.len());
-    for (i, f) in files.iter().enumerate() {
-        progress.check()?;
-        progress.report("decode", i as u64, files.len() as u64);
-        let bytes = (input.load)(f)
-            .map_err(|e| JobError::Transient(format!("storage: cannot read {}: {e}", f.name)))?;
-        let img = PhotoImage::decode(&bytes, &limits)
-            .map_err(|e| permanent(format!("{}: {e}", f.name)))?;
-        out.push(img);
-    }
-    Ok(out)
+    decode_each(input, files, progress, PhotoImage::decode)
 }
 
 /// Decode every image into its `[R, G, B]` planes (for `channels: rgb`), keeping the bit
@@ -178,6 +167,16 @@ pub(super) fn decode_all_rgb(
     files: &[&DatasetFile],
     progress: &dyn Progress,
 ) -> Result<Vec<[PhotoImage; 3]>, JobError> {
+    decode_each(input, files, progress, PhotoImage::decode_rgb)
+}
+
+/// Load and decode every file with `decode`, reporting progress and naming the file on error.
+fn decode_each<T, E: std::fmt::Display>(
+    input: &JobInput,
+    files: &[&DatasetFile],
+    progress: &dyn Progress,
+    decode: impl Fn(&[u8], &ImageLimits) -> Result<T, E>,
+) -> Result<Vec<T>, JobError> {
     let limits = ImageLimits::default();
     let mut out = Vec::with_capacity(files.len());
     for (i, f) in files.iter().enumerate() {
@@ -185,9 +184,7 @@ pub(super) fn decode_all_rgb(
         progress.report("decode", i as u64, files.len() as u64);
         let bytes = (input.load)(f)
             .map_err(|e| JobError::Transient(format!("storage: cannot read {}: {e}", f.name)))?;
-        let img = PhotoImage::decode_rgb(&bytes, &limits)
-            .map_err(|e| permanent(format!("{}: {e}", f.name)))?;
-        out.push(img);
+        out.push(decode(&bytes, &limits).map_err(|e| permanent(format!("{}: {e}", f.name)))?);
     }
     Ok(out)
 }
