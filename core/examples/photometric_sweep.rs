@@ -17,7 +17,8 @@
 //! ```
 //!
 //! `SWEEP_PARAMS='{"gamma_gauge": 0.5}'` (any `OnlineParams` JSON) runs the old fixed gauge
-//! `f(0.5) = 0.5` for comparison. `shared` runs the shared `ae_seq_seed0` (from `CALIPER_PHOTO_DATA`, default
+//! `f(0.5) = 0.5` for comparison. `SWEEP_FRAMES=1` prints the first frames' exposure errors
+//! against the best common scale (`SWEEP_ALL=1`: also every 10th frame). `shared` runs the shared `ae_seq_seed0` (from `CALIPER_PHOTO_DATA`, default
 //! `../shared/data/photometric`) instead.
 
 use std::path::{Path, PathBuf};
@@ -225,8 +226,11 @@ fn score(
             if std::env::var_os("SWEEP_FRAMES").is_some() {
                 let per: Vec<String> = d
                     .iter()
-                    .take(8)
-                    .map(|x| format!("{:+.1}%", 100.0 * (x - mean).exp_m1()))
+                    .enumerate()
+                    .filter(|(i, _)| {
+                        *i < 8 || (std::env::var_os("SWEEP_ALL").is_some() && i % 10 == 0)
+                    })
+                    .map(|(_, x)| format!("{:+.1}%", 100.0 * (x - mean).exp_m1()))
                     .collect();
                 println!("    first frames vs common scale: {}", per.join(" "));
             }

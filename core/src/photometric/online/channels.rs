@@ -35,6 +35,7 @@ use super::super::joint::{JointConfig, JointReport, JointState, Obs, refine};
 use super::super::response::ResponseModel;
 use super::super::{PhotoImage, check_stack};
 use super::center::r2_at;
+use super::gauge::Profile;
 use super::klt::Level;
 use super::{GRAD_HALF_WEIGHT, Observations, OnlineParams, OnlineResult, fit, observe};
 use crate::error::{CoreError, CoreResult};
@@ -112,10 +113,18 @@ pub fn photometric_online_rgb(
     let seen = observe(&luma, params, w, h, progress)?;
     drop(luma);
     if params.channels == Channels::Luma {
-        return fit(frames.len(), w, h, seen, params, progress);
+        return fit(
+            frames.len(),
+            w,
+            h,
+            seen,
+            params,
+            Profile::Independent,
+            progress,
+        );
     }
     let [r, g, b] = [0, 1, 2].map(|c| sample_channel(frames, c, &seen, params, progress));
-    let mut result = fit(frames.len(), w, h, g?, params, progress)?;
+    let mut result = fit(frames.len(), w, h, g?, params, Profile::Chained, progress)?;
     let log_e: Vec<f64> = result.exposure_ratios.iter().map(|e| e.ln()).collect();
     let v = result.model.vignette.as_ref().map_or([0.0; 3], |m| m.v);
     let green_c = match result.model.response {
