@@ -75,3 +75,43 @@ pub fn exposure_error_pct(fit: &[f64], truth: &[f64], alpha: f64) -> f64 {
         .collect();
     100.0 * (errs.iter().map(|e| e * e).sum::<f64>() / errs.len() as f64).sqrt()
 }
+
+/// RMS relative error (in %) of the exposures after raising `fit` to `alpha` and removing the
+/// best common scale (the mean log ratio): the exposure score of the shared `score_ref.json`
+/// (`ratio_rmse_pct_gauge_aligned`), and the one issue 16's targets are stated in. Exposures
+/// are only defined up to one factor (it moves into the radiances), so unlike
+/// [`exposure_error_pct`] it does not charge every frame with frame 0's own error.
+pub fn exposure_error_common_pct(fit: &[f64], truth: &[f64], alpha: f64) -> f64 {
+    if fit.is_empty() || fit.len() != truth.len() {
+        return f64::NAN;
+    }
+    let d: Vec<f64> = fit
+        .iter()
+        .zip(truth)
+        .map(|(f, t)| alpha * f.max(1e-300).ln() - t.max(1e-300).ln())
+        .collect();
+    let mean = d.iter().sum::<f64>() / d.len() as f64;
+    let ss: f64 = d.iter().map(|x| ((x - mean).exp() - 1.0).powi(2)).sum();
+    100.0 * (ss / d.len() as f64).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{exposure_error_common_pct, exposure_error_pct};
+
+    /// A common factor (and the gauge exponent) cost nothing; one bad frame 0 charges every
+    /// frame relative to frame 0 but only itself with the common scale.
+    #[test]
+    fn common_scale_exposure_error_ignores_the_overall_factor() {
+        let truth: Vec<f64> = (0..50).map(|k| 1.0 + 0.1 * f64::from(k)).collect();
+        let scaled: Vec<f64> = truth.iter().map(|t| (3.0 * t).powf(0.5)).collect();
+        assert!(exposure_error_common_pct(&scaled, &truth, 2.0) < 1e-9);
+        let mut bad0 = truth.clone();
+        bad0[0] *= 1.1;
+        let vs0 = exposure_error_pct(&bad0, &truth, 1.0);
+        let common = exposure_error_common_pct(&bad0, &truth, 1.0);
+        assert!(vs0 > 8.0, "{vs0}");
+        assert!(common < 2.0 && common > 0.5, "{common}");
+        assert!(exposure_error_common_pct(&truth[..3], &truth, 1.0).is_nan());
+    }
+}

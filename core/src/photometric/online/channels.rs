@@ -35,7 +35,7 @@ use super::super::joint::{JointConfig, JointReport, JointState, Obs, refine};
 use super::super::response::ResponseModel;
 use super::super::{PhotoImage, check_stack};
 use super::center::r2_at;
-use super::gauge::Profile;
+use super::gauge::OtherChannel;
 use super::klt::Level;
 use super::{GRAD_HALF_WEIGHT, Observations, OnlineParams, OnlineResult, fit, observe};
 use crate::error::{CoreError, CoreResult};
@@ -113,18 +113,17 @@ pub fn photometric_online_rgb(
     let seen = observe(&luma, params, w, h, progress)?;
     drop(luma);
     if params.channels == Channels::Luma {
-        return fit(
-            frames.len(),
-            w,
-            h,
-            seen,
-            params,
-            Profile::Independent,
-            progress,
-        );
+        return fit(frames.len(), w, h, seen, params, &[], progress);
     }
-    let [r, g, b] = [0, 1, 2].map(|c| sample_channel(frames, c, &seen, params, progress));
-    let mut result = fit(frames.len(), w, h, g?, params, Profile::Chained, progress)?;
+    let r = sample_channel(frames, 0, &seen, params, progress)?;
+    let g = sample_channel(frames, 1, &seen, params, progress)?;
+    let b = sample_channel(frames, 2, &seen, params, progress)?;
+    // Red and blue take part in choosing the shared gauge (see `gauge`).
+    let others = [&r, &b].map(|o| OtherChannel {
+        obs: &o.obs,
+        n_points: o.n_points as usize,
+    });
+    let mut result = fit(frames.len(), w, h, g, params, &others, progress)?;
     let log_e: Vec<f64> = result.exposure_ratios.iter().map(|e| e.ln()).collect();
     let v = result.model.vignette.as_ref().map_or([0.0; 3], |m| m.v);
     let green_c = match result.model.response {
@@ -134,8 +133,7 @@ pub fn photometric_online_rgb(
     let center = result.vignette_center.center;
     let rad = (w as f64 / 2.0).hypot(h as f64 / 2.0);
     let huber = params.huber_levels / 255.0;
-    let fit_other = |name: &str, seen: CoreResult<Observations>| {
-        let mut seen = seen?;
+    let fit_other = |name: &str, mut seen: Observations| {
         for (o, &p) in seen.obs.iter_mut().zip(&seen.pos) {
             o.r2 = r2_at(p, center, rad);
         }
@@ -252,11 +250,6 @@ fn sample_channel(
 }
 
 /// One channel's response (and radiances) with the exposures and vignetting fixed.
-///
-/// Started from the mean response and from green's response (channels of one camera are
-/// usually alike), keeping the lower robust cost: with the exposures fixed the problem has no
-/// gauge freedom left, but LM from a single start can still settle in a poor basin when the
-/// channel's curve is far from the start (seen on the tuning sequences with the mean start).
 #[allow(clippy::too_many_arguments)]
 fn fit_fixed(
     name: &str,
@@ -268,15 +261,58 @@ fn fit_fixed(
     params: &OnlineParams,
     progress: &dyn Progress,
 ) -> CoreResult<ChannelResponse> {
+    let (state, rep) = fit_with_shared(
+        &seen.obs,
+        seen.n_points as usize,
+        log_e,
+        v,
+        &[[0.0; EMOR_DIM], green],
+        huber,
+        params.max_iterations,
+        if name == "r" { "red" } else { "blue" },
+        progress,
+    )?;
+    let response = ResponseModel::Emor { c: state.c };
+    Ok(ChannelResponse {
+        channel: name.into(),
+        monotone: response.is_monotone(),
+        inverse_256: response.inverse(256).values,
+        response,
+        residual_rms_levels: rep.rms * 255.0,
+        observations: seen.obs.len(),
+    })
+}
+
+/// A channel's response and radiances fitted with the exposures `log_e` and the vignetting
+/// `v` held, from each response start in `starts`, keeping the lowest robust cost.
+///
+/// Started from the mean response and from green's response (channels of one camera are
+/// usually alike): with the exposures fixed the problem has no gauge freedom left, but LM from
+/// a single start can still settle in a poor basin when the channel's curve is far from the
+/// start (seen on the tuning sequences with the mean start).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn fit_with_shared(
+    obs: &[Obs],
+    n_points: usize,
+    log_e: &[f64],
+    v: [f64; 3],
+    starts: &[[f64; EMOR_DIM]],
+    huber: f64,
+    max_iterations: usize,
+    label: &'static str,
+    progress: &dyn Progress,
+) -> CoreResult<(JointState, JointReport)> {
     let mut best: Option<(JointState, JointReport)> = None;
-    for c0 in [[0.0; EMOR_DIM], green] {
+    for &c0 in starts {
         // Radiances from the start response: `ln L = ln f₀⁻¹(O) − ln e − ln V`, per point.
         let g0 = ResponseModel::Emor { c: c0 }.inverse(4096);
-        let mut acc = vec![(0.0f64, 0.0f64); seen.n_points as usize];
-        for o in &seen.obs {
+        let mut acc = vec![(0.0f64, 0.0f64); n_points];
+        for o in obs {
             let r2 = f64::from(o.r2);
             let vg = (1.0 + r2 * (v[0] + r2 * (v[1] + r2 * v[2]))).max(1e-3);
-            let a = &mut acc[o.point as usize];
+            let Some(a) = acc.get_mut(o.point as usize) else {
+                continue;
+            };
             a.0 += g0.eval(f64::from(o.value)).max(1e-6).ln() - log_e[o.frame as usize] - vg.ln();
             a.1 += 1.0;
         }
@@ -287,15 +323,15 @@ fn fit_fixed(
             log_l: acc.iter().map(|a| a.0 / a.1.max(1.0)).collect(),
         };
         let rep = refine(
-            &seen.obs,
+            obs,
             &JointConfig {
                 fit_response: true,
                 fit_vignette: false,
                 fit_exposures: false,
                 gamma_gauge: None,
                 huber,
-                max_iterations: params.max_iterations,
-                label: if name == "r" { "red" } else { "blue" },
+                max_iterations,
+                label,
             },
             &mut state,
             progress,
@@ -304,16 +340,5 @@ fn fit_fixed(
             best = Some((state, rep));
         }
     }
-    let Some((state, rep)) = best else {
-        return Err(CoreError::NoSolution(format!("channel {name}: no fit")));
-    };
-    let response = ResponseModel::Emor { c: state.c };
-    Ok(ChannelResponse {
-        channel: name.into(),
-        monotone: response.is_monotone(),
-        inverse_256: response.inverse(256).values,
-        response,
-        residual_rms_levels: rep.rms * 255.0,
-        observations: seen.obs.len(),
-    })
+    best.ok_or_else(|| CoreError::NoSolution("no response start given".into()))
 }

@@ -233,7 +233,7 @@ fn run(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3]) {
             ..OnlineParams::default()
         };
         let nobs = seen.obs.len();
-        let r = fit(nf, w, h, seen, &p, super::Profile::Independent, &NoProgress).unwrap();
+        let r = fit(nf, w, h, seen, &p, &[], &NoProgress).unwrap();
         let fitinv = crate::photometric::InverseResponse {
             values: r.model.inverse_256.clone(),
         };

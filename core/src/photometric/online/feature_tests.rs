@@ -206,13 +206,21 @@ fn tune_center() {
     }
 }
 
-/// Held-out seed 106: three responses recovered, each closer to its own truth than to
-/// another channel's, in (nearly) the gauge of the shared exposures, which are recovered too.
-/// The gauge is chosen from the data (`gamma_gauge: null`): with `f_G(0.5) = 0.5` the red
-/// truth moved to green's gauge lies outside the EMoR-4 span (tuning seed 101: red 0.021).
+/// Held-out seeds 106 and 109: three responses recovered, each closer to its own truth than
+/// to another channel's, in the gauge of the truth (the one in which every channel's curve is
+/// in the EMoR-4 span), with the shared exposures recovered frame to frame. The gauge is
+/// chosen from the data over all three channels (`gauge`): the former profile on green alone
+/// put seed 109 at α = 2.3 (green 0.0105, red 0.038). Red is the weak channel: its curve
+/// is concave and its samples cover less of the range (0.8 × the radiance).
 #[test]
 fn rgb_channels_recover_three_responses() {
-    let s = run_rgb(106, 160, 120, 80, None);
+    for seed in [106, 109] {
+        let s = run_rgb(seed, 160, 120, 80, None);
+        check_rgb(&s);
+    }
+}
+
+fn check_rgb(s: &RgbScore) {
     let names: Vec<&str> = s
         .result
         .channel_responses
@@ -221,15 +229,21 @@ fn rgb_channels_recover_three_responses() {
         .map(|c| c.channel.as_str())
         .collect();
     assert_eq!(names, ["r", "g", "b"]);
-    assert!(s.own.iter().all(|e| *e < 0.01), "response RMSE {:?}", s.own);
-    // One gauge for all: the exponent aligning each channel to its truth is about green's.
+    assert!(
+        s.own[0] < 0.015 && s.own[1] < 0.005 && s.own[2] < 0.005,
+        "response RMSE {:?}",
+        s.own
+    );
+    // The truth's gauge: green's aligning exponent is near 1 ...
+    assert!((0.8..1.25).contains(&s.alpha[1]), "α {:?}", s.alpha);
+    // ... and one gauge for all: each channel's exponent is about green's.
     assert!(
         s.alpha.iter().all(|a| (a / s.alpha[1] - 1.0).abs() < 0.2),
         "α {:?}",
         s.alpha
     );
     assert!(
-        s.shared.iter().all(|e| *e < 0.015),
+        s.shared.iter().all(|e| *e < 0.025),
         "at green's α {:?}",
         s.shared
     );
@@ -306,5 +320,14 @@ fn vignette_center_modes() {
             r.vignette_center
         );
         assert_eq!(r.vignette_center.center, [80.0, 60.0]);
+    }
+}
+
+/// Held-out seeds 107–114 (ignored: ~40 s): the numbers of the closing note of issue 16.
+#[test]
+#[ignore]
+fn heldout_rgb_seeds() {
+    for seed in 107..=114 {
+        run_rgb(seed, 160, 120, 80, None);
     }
 }

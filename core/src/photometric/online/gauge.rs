@@ -19,8 +19,16 @@
 //! from the neighbour (the first version) carried an unconverged shape along and made the
 //! profile ragged (costs jumping 2× between neighbours, one held-out case picking 0.75 for a
 //! near-linear camera: response RMSE 0.030 instead of 0.0009).
+//!
+//! A colour camera (`channels: rgb`) has one gauge for its three responses, because the
+//! exposures are shared: red and blue are fitted with green's exposures and vignetting held,
+//! so the gauge that suits green may put red's curve outside the span. The profile therefore
+//! sums, per gauge value, green's converged cost and the costs of red and blue fitted with
+//! green's exposures and vignetting at that value (a profile over the joint likelihood of the
+//! three channels).
 
 use super::super::joint::{JointConfig, JointState, Obs, refine, regauge};
+use super::channels::fit_with_shared;
 use crate::error::CoreResult;
 use crate::progress::Progress;
 
@@ -30,22 +38,19 @@ const GRID: [f64; 7] = [0.25, 0.35, 0.45, 0.55, 0.65, 0.75, 0.85];
 /// Scene points used for the profile (every n-th point above this).
 pub(super) const PROFILE_POINTS: usize = 1500;
 
-/// LM iterations per profiled gauge value: independent starts need more to converge than
-/// the chained walk (kept at its former 12 for the colour path, which is unchanged).
-const PROFILE_ITERATIONS: [usize; 2] = [25, 12];
+/// LM iterations per profiled gauge value (independent starts need about this many to settle;
+/// 12 left the profile ragged).
+const PROFILE_ITERATIONS: usize = 25;
 
-/// How the profile starts each gauge value.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Profile {
-    /// Each value from the start moved into its own gauge sheet (grey and luma fits).
-    Independent,
-    /// Each value warm-started from its neighbour, walking out from the middle (the former
-    /// profile, unchanged): the green channel of `channels: rgb`, where the gauge must also
-    /// suit red and blue, which are fitted later in green's gauge. On the held-out colour test
-    /// sequence (seed 106) red's response RMSE is 0.0018 with it and 0.030 with independent
-    /// starts or with 25 iterations per value: which gauge suits red is luck as long as the
-    /// profile looks at green alone; a profile over all three channels is the principled fix.
-    Chained,
+/// LM iterations of another channel's response at a profiled gauge value (response and
+/// radiances from two starts; with 15 some values stopped in a poorer basin).
+const OTHER_ITERATIONS: usize = 25;
+
+/// Another channel observed at the same tracks (`channels: rgb`): its samples (sorted by
+/// point) and its number of points.
+pub(crate) struct OtherChannel<'a> {
+    pub obs: &'a [Obs],
+    pub n_points: usize,
 }
 
 /// The profile's choice.
@@ -57,22 +62,32 @@ pub(super) struct GaugeChoice {
     pub state: JointState,
 }
 
+/// Every n-th point of `obs` so that about [`PROFILE_POINTS`] remain.
+fn subsample(obs: &[Obs], n_points: usize) -> Vec<Obs> {
+    let every = n_points.div_ceil(PROFILE_POINTS).max(1) as u32;
+    obs.iter()
+        .filter(|o| o.point % every == 0)
+        .copied()
+        .collect()
+}
+
 /// Profile the converged cost over the gauge value and return the best. `start` is the
-/// mean-response start (response coefficients zero); `obs` is sorted by point.
+/// mean-response start (response coefficients zero); `obs` is sorted by point. `others` are
+/// further channels sharing the exposures and vignetting: their costs at each gauge value
+/// are added (see the module notes).
 pub(super) fn choose_gauge(
     obs: &[Obs],
     n_points: usize,
     start: &JointState,
     huber: f64,
     fit_vignette: bool,
-    profile: Profile,
+    others: &[OtherChannel<'_>],
     progress: &dyn Progress,
 ) -> CoreResult<GaugeChoice> {
-    let every = n_points.div_ceil(PROFILE_POINTS).max(1) as u32;
-    let sub: Vec<Obs> = obs
+    let sub = subsample(obs, n_points);
+    let other_subs: Vec<(Vec<Obs>, usize)> = others
         .iter()
-        .filter(|o| o.point % every == 0)
-        .copied()
+        .map(|o| (subsample(o.obs, o.n_points), o.n_points))
         .collect();
     let cfg = |m: f64| JointConfig {
         fit_response: true,
@@ -80,58 +95,46 @@ pub(super) fn choose_gauge(
         fit_exposures: true,
         gamma_gauge: Some(m),
         huber,
-        max_iterations: PROFILE_ITERATIONS[usize::from(profile == Profile::Chained)],
+        max_iterations: PROFILE_ITERATIONS,
         label: "gauge",
     };
     let run = |from: &JointState, m: f64| -> CoreResult<(f64, JointState)> {
         let mut st = from.clone();
         regauge(&mut st, m);
-        let rep = refine(&sub, &cfg(m), &mut st, progress)?;
-        Ok((rep.cost, st))
+        let mut cost = refine(&sub, &cfg(m), &mut st, progress)?.cost;
+        for (o, n) in &other_subs {
+            let (_, rep) = fit_with_shared(
+                o,
+                *n,
+                &st.log_e,
+                st.v,
+                &[[0.0; 4], st.c],
+                huber,
+                OTHER_ITERATIONS,
+                "gauge",
+                progress,
+            )?;
+            cost += rep.cost;
+        }
+        Ok((cost, st))
     };
-    let mid = GRID.len() / 2;
-    let mut costs = vec![f64::INFINITY; GRID.len()];
-    let mut states: Vec<Option<JointState>> = vec![None; GRID.len()];
-    match profile {
-        // Every value from the start moved into its own gauge sheet: warm starts carried one
-        // value's unconverged shape into the next and made the profile ragged (issue-16 eval
-        // cases with costs jumping 2× between neighbours).
-        Profile::Independent => {
-            // `start` has the mean response (c = 0), so `run`'s regauge is the move.
-            for (i, &m) in GRID.iter().enumerate() {
-                let (c, s) = run(start, m)?;
-                costs[i] = c;
-                states[i] = Some(s);
-            }
-        }
-        // Start in the middle, then walk out both ways, each value warm-started from its
-        // neighbour.
-        Profile::Chained => {
-            let (c, s) = run(start, GRID[mid])?;
-            costs[mid] = c;
-            states[mid] = Some(s);
-            for dir in [-1isize, 1] {
-                let mut i = mid as isize;
-                loop {
-                    let next = i + dir;
-                    if next < 0 || next >= GRID.len() as isize {
-                        break;
-                    }
-                    let from = states[i as usize].clone().unwrap_or_else(|| start.clone());
-                    let (c, s) = run(&from, GRID[next as usize])?;
-                    costs[next as usize] = c;
-                    states[next as usize] = Some(s);
-                    i = next;
-                }
-            }
-        }
+    let mut costs = Vec::with_capacity(GRID.len());
+    let mut states = Vec::with_capacity(GRID.len());
+    // Every value from the start moved into its own gauge sheet: warm starts carried one
+    // value's unconverged shape into the next and made the profile ragged (issue-16 eval
+    // cases with costs jumping 2× between neighbours).
+    // `start` has the mean response (c = 0), so `run`'s regauge is the move into m's sheet.
+    for &m in &GRID {
+        let (c, s) = run(start, m)?;
+        costs.push(c);
+        states.push(s);
     }
     let best = (0..GRID.len())
         .min_by(|&a, &b| costs[a].total_cmp(&costs[b]))
-        .unwrap_or(mid);
+        .unwrap_or(GRID.len() / 2);
     let mut choice = GaugeChoice {
         gauge: GRID[best],
-        state: states[best].clone().unwrap_or_else(|| start.clone()),
+        state: states.swap_remove(best),
     };
     // Parabola through the best value and its neighbours.
     if best > 0 && best + 1 < GRID.len() {

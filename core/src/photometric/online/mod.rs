@@ -44,7 +44,7 @@ use super::vignette::VignetteModel;
 use super::{FitDiagnostics, PHOTOMETRIC_SCHEMA, PhotoImage, PhotometricModel, check_stack};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
-use gauge::Profile;
+use gauge::OtherChannel;
 use klt::{KltConfig, Pyramid, min_eigen, patch, refine_to_template, track};
 
 /// Parameters of [`photometric_online`].
@@ -217,15 +217,7 @@ pub fn photometric_online(
     }
     let (w, h) = check_stack(frames, 3)?;
     let seen = observe(frames, params, w, h, progress)?;
-    fit(
-        frames.len(),
-        w,
-        h,
-        seen,
-        params,
-        Profile::Independent,
-        progress,
-    )
+    fit(frames.len(), w, h, seen, params, &[], progress)
 }
 
 /// Samples of tracked scene points, sorted by point (renumbered densely) then frame.
@@ -442,14 +434,15 @@ pub(crate) fn observe(
     })
 }
 
-/// Exposures, then the joint refinement, from the observations.
+/// Exposures, then the joint refinement, from the observations. `others`: further colour
+/// channels at the same tracks that take part in choosing the gauge (`channels: rgb`).
 pub(crate) fn fit(
     nf: usize,
     w: usize,
     h: usize,
     seen: Observations,
     params: &OnlineParams,
-    profile: Profile,
+    others: &[OtherChannel<'_>],
     progress: &dyn Progress,
 ) -> CoreResult<OnlineResult> {
     let Observations {
@@ -525,7 +518,7 @@ pub(crate) fn fit(
                 &state,
                 huber,
                 params.fit_vignette,
-                profile,
+                others,
                 progress,
             )?;
             // Radiances of the points left out of the profile: the start's, moved to the
