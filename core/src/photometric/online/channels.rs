@@ -16,7 +16,9 @@
 //!    weights) and run the full fit (exposures, response, vignetting, centre) on **green**:
 //!    luma is a blend of three different responses and so not of the form `f(e V L)`, while
 //!    green is a single channel, carries most of the luma weight and has half of a Bayer
-//!    sensor's sites (the least noisy channel).
+//!    sensor's sites (the least noisy channel). Red and blue take part in choosing the
+//!    shared γ gauge only: each profiled gauge value adds their costs with green's exposures
+//!    and vignetting held (`gauge`).
 //! 3. Fit the red and blue responses (and their radiances) with the exposures and the
 //!    vignetting held at green's values. With the exposures fixed there is no γ ambiguity left
 //!    (`e^γ` is not free), so the red and blue responses come out in the same gauge as green's

@@ -27,6 +27,7 @@
 //! green's exposures and vignetting at that value (a profile over the joint likelihood of the
 //! three channels).
 
+use super::super::emor::EMOR_DIM;
 use super::super::joint::{JointConfig, JointState, Obs, refine, regauge};
 use super::channels::fit_with_shared;
 use crate::error::CoreResult;
@@ -108,7 +109,7 @@ pub(super) fn choose_gauge(
                 *n,
                 &st.log_e,
                 st.v,
-                &[[0.0; 4], st.c],
+                &[[0.0; EMOR_DIM], st.c],
                 huber,
                 OTHER_ITERATIONS,
                 "gauge",
