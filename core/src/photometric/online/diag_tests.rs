@@ -4,7 +4,9 @@
 
 use super::{Observations, OnlineParams, fit, observe};
 use crate::photometric::joint::Obs;
-use crate::photometric::metrics::{exposure_error_pct, gamma_align, vignette_rmse};
+use crate::photometric::metrics::{
+    exposure_error_common_pct, exposure_error_pct, gamma_align, vignette_rmse,
+};
 use crate::photometric::response::interp_table;
 use crate::photometric::synth::{
     AeVideo, ExposureProgram, Rng, SynthCamera, Texture, render_ae_video,
@@ -246,9 +248,24 @@ fn run(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3]) {
             .unwrap_or_default();
         let verr = vignette_rmse(&vmap, &truth_vig, alpha);
         let eerr = exposure_error_pct(&r.exposure_ratios, &seq.exposures, alpha);
+        let ecom = exposure_error_common_pct(&r.exposure_ratios, &seq.exposures, alpha);
+        let d: Vec<f64> = r
+            .exposure_ratios
+            .iter()
+            .zip(&seq.exposures)
+            .map(|(f, t)| alpha * f.ln() - t.ln())
+            .collect();
+        let mean = d.iter().sum::<f64>() / d.len() as f64;
+        let first: Vec<String> = d
+            .iter()
+            .take(10)
+            .map(|x| format!("{:+.1}", 100.0 * (x - mean).exp_m1()))
+            .collect();
         eprintln!(
-            "{label:12} {name:9} gauge {gauge:?} obs {nobs:7} resp {resp:.4} vig {verr:.4} exp {eerr:6.2}% alpha {alpha:.3} it {} rms {:.2}",
-            r.diagnostics.iterations, r.diagnostics.residual_rms_levels
+            "{label:12} {name:9} gauge {gauge:?} obs {nobs:7} resp {resp:.4} vig {verr:.4} exp {eerr:6.2}% common {ecom:5.2}% alpha {alpha:.3} it {} rms {:.2} first {}",
+            r.diagnostics.iterations,
+            r.diagnostics.residual_rms_levels,
+            first.join(" ")
         );
     };
     let (lo, hi) = seq
