@@ -34,7 +34,10 @@ use crate::error::CoreResult;
 use crate::progress::Progress;
 
 /// Gauge values `f(0.5)` profiled; EMoR responses of real cameras (DoRF) lie well inside.
-const GRID: [f64; 7] = [0.25, 0.35, 0.45, 0.55, 0.65, 0.75, 0.85];
+/// 0.92 lets the parabola refine a best value of 0.85 (a tuning case with f(0.5) = 0.81 went
+/// from response RMSE 0.021 to 0.006 and from 1.9 % to 0.5 % exposure error; no held-out case
+/// changed).
+const GRID: [f64; 8] = [0.25, 0.35, 0.45, 0.55, 0.65, 0.75, 0.85, 0.92];
 
 /// Scene points used for the profile (every n-th point above this).
 pub(super) const PROFILE_POINTS: usize = 1500;

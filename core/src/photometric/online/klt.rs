@@ -3,9 +3,10 @@
 //! Auto exposure changes the brightness of every frame, which breaks the brightness-constancy
 //! assumption of Lucas-Kanade. Following Kim, Frahm & Pollefeys ("Joint Feature Tracking and
 //! Radiometric Calibration from Auto-Exposed Video", ICCV 2007) and Kim & Pollefeys (PAMI
-//! 2008), each feature's patch is matched with an affine brightness change: we solve
-//! `J(q + x) ≈ α · T(x) + β` for the displacement, the gain α and the bias β by Gauss-Newton,
-//! coarse to fine. A forward-backward check rejects drifting tracks.
+//! 2008), each feature's patch is matched with a brightness change: we solve
+//! `J(q + x) ≈ α · T(x) + β + γ · (T(x) − ½)²` for the displacement, the gain α, the bias β and
+//! a curvature γ by Gauss-Newton, coarse to fine (γ, our addition, follows the camera response
+//! over the patch's range; see [`align_step`]). A forward-backward check rejects drifting tracks.
 
 /// One pyramid level: intensity and central-difference gradients.
 pub(crate) struct Level {
@@ -49,6 +50,19 @@ impl Level {
 }
 
 impl Level {
+    /// Whether any pixel of the bilinear support of `(x, y)` is [`clipped`] (`(x, y)` inside).
+    #[inline]
+    fn support_clipped(&self, x: f32, y: f32) -> bool {
+        let x0 = (x.floor() as usize).min(self.w.saturating_sub(2));
+        let y0 = (y.floor() as usize).min(self.h.saturating_sub(2));
+        let i = y0 * self.w + x0;
+        let j = i + self.w;
+        clipped(self.data[i])
+            || clipped(self.data[i + 1])
+            || clipped(self.data[j])
+            || clipped(self.data[j + 1])
+    }
+
     /// Bilinear sample of intensity and both gradients at once (shared weights).
     #[inline]
     pub fn sample3(&self, x: f32, y: f32) -> Option<[f32; 3]> {
@@ -123,20 +137,49 @@ fn clipped(v: f32) -> bool {
     !(0.01..=0.985).contains(&v)
 }
 
-/// One Gauss-Newton step of the gain-and-bias translation model `α·T + β ≈ J(q + ·)` of the
-/// template `tmpl` (a `(2·hw + 1)²` window, raster order) on level `lb` at `q`: the step
-/// `(dx, dy, dα, dβ)` in that level's pixels and the RMS residual. `None` when a sample leaves
-/// the level, fewer than half the pixels are usable (clipped), or the system is singular.
+/// Intensity about which the quadratic brightness term is centred (keeps it nearly orthogonal
+/// to gain and bias, so the 5×5 system stays well conditioned).
+const QUAD_CENTRE: f32 = 0.5;
+
+/// Brightness state of a match: `J(q + x) ≈ gain·T(x) + bias + quad·(T(x) − ½)²`.
+#[derive(Debug, Clone, Copy)]
+struct Brightness {
+    gain: f32,
+    bias: f32,
+    quad: f32,
+}
+
+impl Brightness {
+    const IDENTITY: Self = Self {
+        gain: 1.0,
+        bias: 0.0,
+        quad: 0.0,
+    };
+}
+
+/// One Gauss-Newton step of the brightness-compensated translation model
+/// `gain·T + bias (+ quad·(T − ½)²) ≈ J(q + ·)` of the template `tmpl` (a `(2·hw + 1)²` window,
+/// raster order) on level `lb` at `q`: the step `(dx, dy, dgain, dbias, dquad)` in that level's
+/// pixels and the RMS residual. `None` when a sample leaves the level, fewer than half the pixels are usable (clipped), or the system
+/// is singular.
+///
+/// Why a quadratic term: between two exposures the same scene patch is related by the
+/// camera's response, `J = f(k·f⁻¹(T))`, which is not affine over a patch with contrast. An
+/// affine model leaves a residual that is odd about an edge's midpoint, and the least-squares
+/// shift absorbs it: the match slides towards the side where the mapping is steeper, by a
+/// fraction of a pixel that grows with the exposure ratio to the template. For the template of
+/// a track's birth, that ratio is largest in the quickly changing first frames of an
+/// auto-exposure clip, and the sliding samples then bias those frames' exposures. The
+/// quadratic term follows the curvature of the mapping over the patch's range.
 fn align_step(
     lb: &Level,
     tmpl: &[f32],
     hw: i32,
     q: [f32; 2],
-    alpha: f32,
-    beta: f32,
-) -> Option<([f64; 4], f32)> {
-    let mut hm = [[0.0f32; 4]; 4];
-    let mut g = [0.0f32; 4];
+    b: Brightness,
+) -> Option<([f64; 5], f32)> {
+    let mut hm = [[0.0f32; 5]; 5];
+    let mut g = [0.0f32; 5];
     let mut ss = 0.0f32;
     let mut used = 0usize;
     let mut k = 0;
@@ -144,17 +187,21 @@ fn align_step(
         for dx in -hw..=hw {
             let t = tmpl[k];
             k += 1;
-            let [j, jx, jy] = lb.sample3(q[0] + dx as f32, q[1] + dy as f32)?;
-            if clipped(t) || clipped(j) {
+            // All four pixels of the bilinear support must be unclipped: a clipped
+            // neighbour's true value is beyond the clip, so the interpolation is biased.
+            let (x, y) = (q[0] + dx as f32, q[1] + dy as f32);
+            let [j, jx, jy] = lb.sample3(x, y)?;
+            if clipped(t) || lb.support_clipped(x, y) {
                 continue;
             }
             used += 1;
-            let r = alpha * t + beta - j;
+            let t2 = (t - QUAD_CENTRE) * (t - QUAD_CENTRE);
+            let r = b.gain * t + b.bias + b.quad * t2 - j;
             ss += r * r;
-            let jac = [jx, jy, -t, -1.0];
-            for i in 0..4 {
+            let jac = [jx, jy, -t, -1.0, -t2];
+            for i in 0..5 {
                 g[i] += jac[i] * r;
-                for m in i..4 {
+                for m in i..5 {
                     hm[i][m] += jac[i] * jac[m];
                 }
             }
@@ -163,14 +210,33 @@ fn align_step(
     if used < tmpl.len() / 2 {
         return None;
     }
-    let m = nalgebra::Matrix4::from_fn(|i, j| {
-        f64::from(hm[i.min(j)][i.max(j)]) + if i == j { 1e-9 } else { 0.0 }
+    // A small ridge on the quadratic term: a patch with only two grey levels (a clean step
+    // edge) does not determine it, and then it should stay near 0.
+    let ridge = 1e-4 * used as f64;
+    let m = nalgebra::Matrix5::from_fn(|i, j| {
+        let d = if i != j {
+            0.0
+        } else if i == 4 {
+            ridge
+        } else {
+            1e-9
+        };
+        f64::from(hm[i.min(j)][i.max(j)]) + d
     });
-    let step = m.lu().solve(&nalgebra::Vector4::from(g.map(f64::from)))?;
+    let step = m.lu().solve(&nalgebra::Vector5::from(g.map(f64::from)))?;
     Some((
-        [step[0], step[1], step[2], step[3]],
+        [step[0], step[1], step[2], step[3], step[4]],
         (ss / used as f32).sqrt(),
     ))
+}
+
+/// Apply the brightness part of an [`align_step`] step; `false` when the gain leaves the
+/// plausible range (the match is then rejected).
+fn update_brightness(b: &mut Brightness, step: &[f64; 5]) -> bool {
+    b.gain += step[2] as f32;
+    b.bias += step[3] as f32;
+    b.quad += step[4] as f32;
+    (0.05..=20.0).contains(&b.gain)
 }
 
 /// Track one point from `a` to `b` (level-0 coordinates); returns the new position.
@@ -186,7 +252,7 @@ fn track_one(
     let hw = cfg.half_window;
     let npx = ((2 * hw + 1) * (2 * hw + 1)) as usize;
     let mut d = [guess[0] - p[0], guess[1] - p[1]];
-    let (mut alpha, mut beta) = (1.0f32, 0.0f32);
+    let mut bright = Brightness::IDENTITY;
     let mut tmpl = vec![0.0f32; npx];
     let mut last_rms = f32::INFINITY;
     for l in (0..nl).rev() {
@@ -201,15 +267,12 @@ fn track_one(
             }
         }
         for _ in 0..cfg.iterations {
-            let (step, rms) =
-                align_step(lb, &tmpl, hw, [px + d[0] * s, py + d[1] * s], alpha, beta)?;
+            let (step, rms) = align_step(lb, &tmpl, hw, [px + d[0] * s, py + d[1] * s], bright)?;
             last_rms = rms;
             // Step is in this level's pixels.
             d[0] += (step[0] as f32) / s;
             d[1] += (step[1] as f32) / s;
-            alpha += step[2] as f32;
-            beta += step[3] as f32;
-            if !(0.05..=20.0).contains(&alpha) {
+            if !update_brightness(&mut bright, &step) {
                 return None;
             }
             if step[0].abs() + step[1].abs() < 0.02 {
@@ -297,16 +360,14 @@ pub(crate) fn refine_to_template(
 ) -> Option<([f32; 2], f32)> {
     let lb = &b.levels[0];
     let mut d = [0.0f32; 2];
-    let (mut alpha, mut beta) = (1.0f32, 0.0f32);
+    let mut bright = Brightness::IDENTITY;
     let mut rms = f32::INFINITY;
     for _ in 0..iterations {
-        let (step, r) = align_step(lb, tmpl, hw, [q[0] + d[0], q[1] + d[1]], alpha, beta)?;
+        let (step, r) = align_step(lb, tmpl, hw, [q[0] + d[0], q[1] + d[1]], bright)?;
         rms = r;
         d[0] += step[0] as f32;
         d[1] += step[1] as f32;
-        alpha += step[2] as f32;
-        beta += step[3] as f32;
-        if !(0.05..=20.0).contains(&alpha) || d[0].abs() + d[1].abs() > 2.0 {
+        if !update_brightness(&mut bright, &step) || d[0].abs() + d[1].abs() > 2.0 {
             return None;
         }
         if step[0].abs() + step[1].abs() < 0.005 {
