@@ -3,19 +3,12 @@
 //! SLAM", RA-L 2017), run as a batch over the given frames:
 //!
 //! 1. [`klt`]: gain-robust KLT tracks (Kim & Pollefeys 2008) on a pyramid, re-detecting
-//!    Shi-Tomasi corners on a grid when tracks are lost; every track contributes a few pixel
-//!    samples around its centre, weighted down where the image gradient is steep (where a
-//!    sub-pixel position error changes the value most). Each frame-to-frame match is re-aligned
-//!    to the patch where the track was born, and clipped pixels are left out of the matching
-//!    and of the samples: frame-to-frame tracks drifted ~1 px over 70 frames on the issue-16
-//!    sweep, and that drift (not the renderer, the noise or the fit: with ground-truth
-//!    positions the fit recovers response/vignetting/exposures to 0.0002 / 0.0008 / 0.4 %, see
-//!    `diag_tests.rs`) was the main source of the bias. The match models the brightness change
-//!    with gain, bias and a quadratic term ([`klt`]: under a large exposure change an affine
-//!    model lets the match slide across edges, which biased the first, quickly changing frames
-//!    of an auto-exposure clip by up to −26 % on a concave camera; with the quadratic term the
-//!    diagnostic's common-scale exposure error fell from 1.99 % to 0.31 % and from 6.37 % to
-//!    1.45 %), and tracks end after [`MAX_TRACK_AGE`] frames.
+//!    Shi-Tomasi corners on a grid when tracks are lost; every track gives a few pixel samples
+//!    around its centre, weighted down where the gradient is steep. Each match is re-aligned to
+//!    the patch where the track was born, clipped pixels are left out, the brightness model has
+//!    a quadratic term, and tracks end after [`MAX_TRACK_AGE`] frames: track drift and slide
+//!    (not the renderer, the noise or the fit: with true positions the fit recovers response /
+//!    vignetting / exposures to 0.0002 / 0.0008 / 0.4 %, `diag_tests.rs`) biased the fit most.
 //! 2. Exposures: frame-to-frame log ratios from the tracks under the mean EMoR response
 //!    (a linear problem), then a Gauss-Newton pass on exposures and radiances only.
 //! 3. Joint Huber Levenberg-Marquardt over response (EMoR-4), vignetting (`v1..v3`),
@@ -196,10 +189,9 @@ const OFFSETS: [[f32; 2]; 9] = [
     [-2.0, 2.0],
 ];
 
-/// Frames after which a track is ended (its cell is then re-detected). Matching against the
-/// birth template with a translation-only model drifts as the patch rotates and scales (median
-/// 0.1 px after 10 frames, 0.5 px after 70 on the issue-16 sweep, `diag_tests.rs`); chosen on
-/// the sweep's tuning split (targets met on 7 of 12 cases with 40, 5 with 80, 4 unlimited).
+/// Frames after which a track ends (its cell is re-detected): the translation-only match to the
+/// birth patch drifts as the patch turns and scales (0.5 px after 70 frames, `diag_tests.rs`).
+/// Chosen on the sweep's tuning split: targets met on 7 of 12 cases with 40, 5 with 80, 4 without.
 const MAX_TRACK_AGE: u32 = 40;
 
 /// Gradient (normalised intensity per pixel) at which a sample's weight halves.
