@@ -15,7 +15,7 @@ use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
 use super::response::InverseResponse;
-use super::spline::{SplineOptions, centroid_center, fit_spline};
+use super::spline::{SplineOptions, estimate_center, fit_spline};
 use super::vignette::VignetteModel;
 use super::{PHOTOMETRIC_SCHEMA, PhotoImage, check_stack};
 use crate::error::{CoreError, CoreResult};
@@ -251,7 +251,7 @@ fn fit_spline_result(
     let (w, h) = (images[0].width, images[0].height);
     let mut model = VignetteModel::centered(w, h, [0.0; 3]);
     if params.fit_center {
-        model.center = centroid_center(images, params.high_cut);
+        model.center = estimate_center(images, params.high_cut);
     }
     let o = SplineOptions {
         stride: params.stride,

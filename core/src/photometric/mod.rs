@@ -30,6 +30,7 @@ mod online;
 pub mod plot;
 mod response;
 mod spline;
+mod spline_center;
 pub mod synth;
 mod vignette;
 

@@ -211,18 +211,32 @@ fn bin_flats(
     Ok(b)
 }
 
-/// Optical centre for the spline model when it is fitted: the centroid of the region above half
-/// the maximum of the least saturated flat (a disc for a radial falloff, unless the frame clips
-/// it). Falls back to the image centre when that region is empty.
-pub(crate) fn centroid_center(images: &[PhotoImage], high_cut: f64) -> [f64; 2] {
-    let (w, h) = (images[0].width, images[0].height);
+/// The flat with the fewest saturated pixels.
+fn least_saturated(images: &[PhotoImage], high_cut: f64) -> Option<&PhotoImage> {
     let sat = |im: &PhotoImage| {
         im.data
             .iter()
             .filter(|&&v| f64::from(v) >= high_cut * f64::from(im.max_level))
             .count()
     };
-    let Some(im) = images.iter().min_by_key(|im| sat(im)) else {
+    images.iter().min_by_key(|im| sat(im))
+}
+
+/// Optical centre for the spline model when it is fitted: circle fits to the contours of the
+/// least saturated flat ([`super::spline_center`]), or, when it has no usable contour,
+/// [`centroid_center`].
+pub(crate) fn estimate_center(images: &[PhotoImage], high_cut: f64) -> [f64; 2] {
+    least_saturated(images, high_cut)
+        .and_then(super::spline_center::contour_center)
+        .unwrap_or_else(|| centroid_center(images, high_cut))
+}
+
+/// The centroid of the region above half the maximum of the least saturated flat (a disc for a
+/// radial falloff, unless the frame clips it). Falls back to the image centre when that region
+/// is empty.
+pub(crate) fn centroid_center(images: &[PhotoImage], high_cut: f64) -> [f64; 2] {
+    let (w, h) = (images[0].width, images[0].height);
+    let Some(im) = least_saturated(images, high_cut) else {
         return [w as f64 / 2.0, h as f64 / 2.0];
     };
     let max = im.data.iter().copied().max().unwrap_or(0);
