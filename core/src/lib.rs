@@ -19,6 +19,7 @@ pub mod photometric;
 mod plot_axis;
 pub mod progress;
 pub mod rig;
+mod stats;
 pub mod synth;
 #[cfg(test)]
 mod test_env;

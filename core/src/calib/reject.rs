@@ -6,22 +6,10 @@ use nalgebra::Vector2;
 use super::solve::ViewState;
 use super::types::{CalibOptions, MIN_CORNERS_PER_VIEW, MIN_VIEWS, RejectedCorner};
 use crate::camera::{Camera, CameraModel};
+use crate::stats::median;
 
 /// MAD → σ for a normal distribution.
 const MAD_TO_SIGMA: f64 = 1.482_602_218_505_602;
-
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
 
 /// One round of outlier rejection on the active views; returns whether anything was rejected.
 ///

@@ -222,23 +222,22 @@ fn least_saturated(images: &[PhotoImage], high_cut: f64) -> Option<&PhotoImage> 
     images.iter().min_by_key(|im| sat(im))
 }
 
-/// Optical centre for the spline model when it is fitted: circle fits to the contours of the
-/// least saturated flat ([`super::spline_center`]), or, when it has no usable contour,
-/// [`centroid_center`].
+/// Optical centre for the spline model when it is fitted, from the least saturated flat:
+/// circle fits to its contours ([`super::spline_center`]), or, when it has no usable contour,
+/// [`centroid_center`]. The image centre when there is no flat.
 pub(crate) fn estimate_center(images: &[PhotoImage], high_cut: f64) -> [f64; 2] {
-    least_saturated(images, high_cut)
-        .and_then(super::spline_center::contour_center)
-        .unwrap_or_else(|| centroid_center(images, high_cut))
+    match least_saturated(images, high_cut) {
+        Some(im) => super::spline_center::contour_center(im).unwrap_or_else(|| centroid_center(im)),
+        None => images.first().map_or([0.0; 2], |im| {
+            [im.width as f64 / 2.0, im.height as f64 / 2.0]
+        }),
+    }
 }
 
-/// The centroid of the region above half the maximum of the least saturated flat (a disc for a
-/// radial falloff, unless the frame clips it). Falls back to the image centre when that region
-/// is empty.
-pub(crate) fn centroid_center(images: &[PhotoImage], high_cut: f64) -> [f64; 2] {
-    let (w, h) = (images[0].width, images[0].height);
-    let Some(im) = least_saturated(images, high_cut) else {
-        return [w as f64 / 2.0, h as f64 / 2.0];
-    };
+/// The centroid of the region above half the maximum of `im` (a disc for a radial falloff,
+/// unless the frame clips it). Falls back to the image centre when that region is empty.
+pub(crate) fn centroid_center(im: &PhotoImage) -> [f64; 2] {
+    let (w, h) = (im.width, im.height);
     let max = im.data.iter().copied().max().unwrap_or(0);
     let thr = f64::from(max) / 2.0;
     let (mut sx, mut sy, mut n) = (0.0, 0.0, 0.0);

@@ -12,6 +12,7 @@
 //! IEEE Trans. Instrum. Meas. 1976) at several levels, the median of their centres.
 
 use super::PhotoImage;
+use crate::stats::median;
 
 /// Levels, as fractions of the smoothed maximum, whose contours are fitted.
 const LEVELS: [f64; 5] = [0.3, 0.4, 0.5, 0.6, 0.7];
@@ -54,7 +55,7 @@ pub(crate) fn contour_center(im: &PhotoImage) -> Option<[f64; 2]> {
     if xs.is_empty() {
         return None;
     }
-    Some([median(&mut xs), median(&mut ys)])
+    Some([median(xs), median(ys)])
 }
 
 /// `(2·SMOOTH + 1)²` box mean (via a summed-area table); the border keeps the raw values'
@@ -121,16 +122,6 @@ fn fit_circle(pts: &[[f64; 2]]) -> Option<[f64; 2]> {
     Some([mx - sol[0] / 2.0, my - sol[1] / 2.0])
 }
 
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -157,7 +148,7 @@ mod tests {
         };
         let c = contour_center(&im).expect("a centre");
         assert!((c[0] - cx).abs() < 0.5 && (c[1] - cy).abs() < 0.5, "{c:?}");
-        let cen = super::super::spline::centroid_center(std::slice::from_ref(&im), 0.99);
+        let cen = super::super::spline::centroid_center(&im);
         assert!(
             (cen[0] - cx).abs() > 1.0,
             "the centroid is biased here: {cen:?}"

@@ -158,10 +158,10 @@ impl Brightness {
 }
 
 /// One Gauss-Newton step of the brightness-compensated translation model
-/// `gain·T + bias (+ quad·(T − ½)²) ≈ J(q + ·)` of the template `tmpl` (a `(2·hw + 1)²` window,
+/// `gain·T + bias + quad·(T − ½)² ≈ J(q + ·)` of the template `tmpl` (a `(2·hw + 1)²` window,
 /// raster order) on level `lb` at `q`: the step `(dx, dy, dgain, dbias, dquad)` in that level's
-/// pixels and the RMS residual. `None` when a sample leaves the level, fewer than half the pixels are usable (clipped), or the system
-/// is singular.
+/// pixels and the RMS residual. `None` when a sample leaves the level, fewer than half the
+/// pixels are usable (clipped), or the system is singular.
 ///
 /// Why a quadratic term: between two exposures the same scene patch is related by the
 /// camera's response, `J = f(k·f⁻¹(T))`, which is not affine over a patch with contrast. An

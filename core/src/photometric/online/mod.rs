@@ -273,6 +273,8 @@ pub(crate) fn observe(
         progress.report("track", k as u64, frames.len() as u64);
         let pyr = to_pyr(im);
         if let Some(pp) = &prev {
+            // Tracks at the age limit end here, before they cost a match.
+            tracks.retain(|t| track_len[t.id] < MAX_TRACK_AGE);
             let tracked: Vec<Option<[f32; 2]>> = {
                 use rayon::prelude::*;
                 tracks
@@ -296,9 +298,7 @@ pub(crate) fn observe(
             };
             let mut kept = Vec::with_capacity(tracks.len());
             for (t, q) in tracks.drain(..).zip(tracked) {
-                if let Some(q) = q
-                    && track_len[t.id] < MAX_TRACK_AGE
-                {
+                if let Some(q) = q {
                     kept.push(Track {
                         id: t.id,
                         vel: [q[0] - t.pos[0], q[1] - t.pos[1]],
