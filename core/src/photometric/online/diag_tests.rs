@@ -28,8 +28,8 @@ fn pose(video: &AeVideo, k: usize) -> (f64, f64, f64, f64) {
         200.0 + 2.0 * video.speed * t,
         300.0 + 25.0 * (0.02 * video.speed * t).sin(),
     );
-    let th = 0.15 * (0.013 * t).sin();
-    let sc = 1.0 + 0.15 * (0.017 * t).sin();
+    let th = 0.15 * video.turn * (0.013 * t).sin();
+    let sc = 1.0 + 0.15 * video.turn * (0.017 * t).sin();
     (th.cos() * sc, th.sin() * sc, tx, ty)
 }
 
@@ -163,8 +163,8 @@ fn gt_obs(
                 200.0 + 2.0 * video.speed * t,
                 300.0 + 25.0 * (0.02 * video.speed * t).sin(),
             );
-            let th = 0.15 * (0.013 * t).sin();
-            let sc = 1.0 + 0.15 * (0.017 * t).sin();
+            let th = 0.15 * video.turn * (0.013 * t).sin();
+            let sc = 1.0 + 0.15 * video.turn * (0.017 * t).sin();
             let (du, dv) = (u - tx, v - ty);
             let (c, s) = (th.cos() / sc, th.sin() / sc);
             let (x, y) = (w / 2.0 + c * du + s * dv, h / 2.0 - s * du + c * dv);
@@ -326,4 +326,48 @@ fn diag_ground_truth_observations() {
         ae,
         [-0.35, 0.05, 0.0],
     );
+}
+
+/// A heavily saturated auto-exposure video (about half the pixels clipped), to tell the
+/// truncation of samples at the clip level from tracker errors.
+#[test]
+#[ignore]
+fn diag_saturated() {
+    let ae = AeVideo {
+        program: ExposureProgram::AutoExposure {
+            target: 0.62,
+            gain: 0.5,
+            flicker: 0.05,
+        },
+        mid: 0.05,
+        stops: 9.0,
+        ..AeVideo::default()
+    };
+    run(
+        "sat-mean",
+        ResponseModel::Emor { c: [0.0; 4] },
+        ae.clone(),
+        [-0.35, 0.05, 0.0],
+    );
+    run(
+        "sat-linear",
+        ResponseModel::Gamma { gamma: 1.0 },
+        ae.clone(),
+        [-0.35, 0.05, 0.0],
+    );
+    if std::env::var_os("DIAG_NOTURN").is_some() {
+        let still = AeVideo { turn: 0.0, ..ae };
+        run(
+            "sat-mean-t0",
+            ResponseModel::Emor { c: [0.0; 4] },
+            still.clone(),
+            [-0.35, 0.05, 0.0],
+        );
+        run(
+            "sat-lin-t0",
+            ResponseModel::Gamma { gamma: 1.0 },
+            still,
+            [-0.35, 0.05, 0.0],
+        );
+    }
 }

@@ -8,6 +8,8 @@
 //! a curvature γ by Gauss-Newton, coarse to fine (γ, our addition, follows the camera response
 //! over the patch's range; see [`align_step`]). A forward-backward check rejects drifting tracks.
 
+use super::similarity::Similarity;
+
 /// One pyramid level: intensity and central-difference gradients.
 pub(crate) struct Level {
     pub w: usize,
@@ -177,6 +179,7 @@ fn align_step(
     hw: i32,
     q: [f32; 2],
     b: Brightness,
+    warp: Similarity,
 ) -> Option<([f64; 5], f32)> {
     let mut hm = [[0.0f32; 5]; 5];
     let mut g = [0.0f32; 5];
@@ -189,7 +192,8 @@ fn align_step(
             k += 1;
             // All four pixels of the bilinear support must be unclipped: a clipped
             // neighbour's true value is beyond the clip, so the interpolation is biased.
-            let (x, y) = (q[0] + dx as f32, q[1] + dy as f32);
+            let [ox, oy] = warp.apply([dx as f32, dy as f32]);
+            let (x, y) = (q[0] + ox, q[1] + oy);
             let [j, jx, jy] = lb.sample3(x, y)?;
             if clipped(t) || lb.support_clipped(x, y) {
                 continue;
@@ -267,7 +271,14 @@ fn track_one(
             }
         }
         for _ in 0..cfg.iterations {
-            let (step, rms) = align_step(lb, &tmpl, hw, [px + d[0] * s, py + d[1] * s], bright)?;
+            let (step, rms) = align_step(
+                lb,
+                &tmpl,
+                hw,
+                [px + d[0] * s, py + d[1] * s],
+                bright,
+                Similarity::IDENTITY,
+            )?;
             last_rms = rms;
             // Step is in this level's pixels.
             d[0] += (step[0] as f32) / s;
@@ -348,22 +359,25 @@ pub(crate) fn patch(a: &Pyramid, p: [f32; 2], hw: i32) -> Option<Vec<f32>> {
 }
 
 /// Re-align a tracked position `q` in `b` to the track's reference template (the patch where it
-/// was detected) with the same gain-and-bias model, so that frame-to-frame errors do not add
+/// was detected) with the same brightness model, so that frame-to-frame errors do not add
 /// up to drift along the track (Shi & Tomasi, "Good Features to Track", CVPR 1994, check the
-/// feature against its first appearance). Returns the position and the patch RMS.
+/// feature against its first appearance). The template is laid out with `warp`, the rotation
+/// and scale of the image since the track's birth ([`Similarity`]). Returns the position and
+/// the patch RMS.
 pub(crate) fn refine_to_template(
     tmpl: &[f32],
     b: &Pyramid,
     q: [f32; 2],
     hw: i32,
     iterations: usize,
+    warp: Similarity,
 ) -> Option<([f32; 2], f32)> {
     let lb = &b.levels[0];
     let mut d = [0.0f32; 2];
     let mut bright = Brightness::IDENTITY;
     let mut rms = f32::INFINITY;
     for _ in 0..iterations {
-        let (step, r) = align_step(lb, tmpl, hw, [q[0] + d[0], q[1] + d[1]], bright)?;
+        let (step, r) = align_step(lb, tmpl, hw, [q[0] + d[0], q[1] + d[1]], bright, warp)?;
         rms = r;
         d[0] += step[0] as f32;
         d[1] += step[1] as f32;
@@ -375,4 +389,54 @@ pub(crate) fn refine_to_template(
         }
     }
     Some(([q[0] + d[0], q[1] + d[1]], rms))
+}
+
+/// A feature followed through the video.
+pub(crate) struct Track {
+    pub id: usize,
+    pub pos: [f32; 2],
+    pub vel: [f32; 2],
+    /// The video's roll-and-zoom chain at the track's birth ([`Similarity`]): the chain at the
+    /// current frame divided by it lays out the template and the samples.
+    pub birth: Similarity,
+    /// Level-0 patch where the track was detected.
+    pub tmpl: Vec<f32>,
+}
+
+/// Tracks every track from `pp` into `pyr` (frame to frame, translation only), updates the
+/// roll-and-zoom `chain` from the matches, and re-aligns each match to its birth template laid
+/// out with the roll and zoom since its birth. `None` for lost tracks.
+pub(crate) fn track_and_refine(
+    pp: &Pyramid,
+    pyr: &Pyramid,
+    tracks: &[Track],
+    cfg: &KltConfig,
+    chain: &mut Similarity,
+) -> Vec<Option<[f32; 2]>> {
+    use rayon::prelude::*;
+    let moved: Vec<Option<[f32; 2]>> = tracks
+        .par_iter()
+        .map(|t| {
+            let guess = [t.pos[0] + t.vel[0], t.pos[1] + t.vel[1]];
+            track(pp, pyr, t.pos, guess, cfg)
+        })
+        .collect();
+    let (from, to): (Vec<[f32; 2]>, Vec<[f32; 2]>) = tracks
+        .iter()
+        .zip(&moved)
+        .filter_map(|(t, q)| q.map(|q| (t.pos, q)))
+        .unzip();
+    if let Some(step) = Similarity::fit(&from, &to) {
+        *chain = chain.then(step);
+    }
+    let now = *chain;
+    tracks
+        .par_iter()
+        .zip(moved.par_iter())
+        .map(|(t, q)| {
+            let (q2, rms) =
+                refine_to_template(&t.tmpl, pyr, (*q)?, cfg.half_window, 10, now.since(t.birth))?;
+            (rms <= cfg.max_residual).then_some(q2)
+        })
+        .collect()
 }
