@@ -355,6 +355,28 @@ fn diag_saturated() {
         ae.clone(),
         [-0.35, 0.05, 0.0],
     );
+    if std::env::var_os("DIAG_TRANSIENT").is_some() {
+        // A start far above the controller's target: the exposure falls ~10× in the first
+        // frames (as the sweep's tuning#3, whose response this is).
+        let fast = AeVideo {
+            program: ExposureProgram::AutoExposure {
+                target: 0.3,
+                gain: 0.6,
+                flicker: 0.03,
+            },
+            mid: 0.09,
+            stops: 8.0,
+            ..AeVideo::default()
+        };
+        run(
+            "transient",
+            ResponseModel::Emor {
+                c: [-1.55, 0.13, 0.98, -0.12],
+            },
+            fast,
+            [-0.35, 0.05, 0.0],
+        );
+    }
     if std::env::var_os("DIAG_NOTURN").is_some() {
         let still = AeVideo { turn: 0.0, ..ae };
         run(
