@@ -343,20 +343,15 @@ fn diag_saturated() {
         stops: 9.0,
         ..AeVideo::default()
     };
-    run(
-        "sat-mean",
-        ResponseModel::Emor { c: [0.0; 4] },
-        ae.clone(),
-        [-0.35, 0.05, 0.0],
-    );
-    run(
-        "sat-linear",
-        ResponseModel::Gamma { gamma: 1.0 },
-        ae.clone(),
-        [-0.35, 0.05, 0.0],
-    );
+    let vig = [-0.35, 0.05, 0.0];
+    let mean = ResponseModel::Emor { c: [0.0; 4] };
+    let linear = ResponseModel::Gamma { gamma: 1.0 };
+    let mut cases = vec![
+        ("sat-mean", mean.clone(), ae.clone()),
+        ("sat-linear", linear.clone(), ae.clone()),
+    ];
     if std::env::var_os("DIAG_TRANSIENT").is_some() {
-        // A start far above the controller's target: the exposure falls ~10× in the first
+        // A start far above the controller's target: the exposure falls ~20× in the first
         // frames (as the sweep's tuning#3, whose response this is).
         let fast = AeVideo {
             program: ExposureProgram::AutoExposure {
@@ -368,28 +363,17 @@ fn diag_saturated() {
             stops: 8.0,
             ..AeVideo::default()
         };
-        run(
-            "transient",
-            ResponseModel::Emor {
-                c: [-1.55, 0.13, 0.98, -0.12],
-            },
-            fast,
-            [-0.35, 0.05, 0.0],
-        );
+        let concave = ResponseModel::Emor {
+            c: [-1.55, 0.13, 0.98, -0.12],
+        };
+        cases.push(("transient", concave, fast));
     }
     if std::env::var_os("DIAG_NOTURN").is_some() {
         let still = AeVideo { turn: 0.0, ..ae };
-        run(
-            "sat-mean-t0",
-            ResponseModel::Emor { c: [0.0; 4] },
-            still.clone(),
-            [-0.35, 0.05, 0.0],
-        );
-        run(
-            "sat-lin-t0",
-            ResponseModel::Gamma { gamma: 1.0 },
-            still,
-            [-0.35, 0.05, 0.0],
-        );
+        cases.push(("sat-mean-t0", mean, still.clone()));
+        cases.push(("sat-lin-t0", linear, still));
+    }
+    for (label, response, video) in cases {
+        run(label, response, video, vig);
     }
 }

@@ -7,8 +7,9 @@
 //!    around its centre, weighted down where the gradient is steep. Each match is re-aligned to
 //!    the patch where the track was born, clipped pixels are left out, the brightness model has
 //!    a quadratic term, the birth patch follows the video's roll and zoom ([`similarity`]), and
-//!    tracks end after [`MAX_TRACK_AGE`] frames: track drift and slide (not the renderer, the noise or the fit: with true positions the fit recovers response /
-//!    vignetting / exposures to 0.0002 / 0.0008 / 0.4 %, `diag_tests.rs`) biased the fit most.
+//!    tracks end after [`MAX_TRACK_AGE`] frames: track drift and slide (not the renderer, the
+//!    noise or the fit: with true positions the fit recovers response / vignetting / exposures
+//!    to 0.0002 / 0.0008 / 0.4 %, `diag_tests.rs`) biased the fit most.
 //! 2. Exposures: frame-to-frame log ratios from the tracks under the mean EMoR response
 //!    (a linear problem), then a Gauss-Newton pass on exposures and radiances only.
 //! 3. Joint Huber Levenberg-Marquardt over response (EMoR-4), vignetting (`v1..v3`),

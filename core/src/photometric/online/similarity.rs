@@ -49,57 +49,75 @@ impl Similarity {
     /// median (lost or jumping tracks). `None` with fewer than 8 pairs or a degenerate spread.
     pub fn fit(from: &[[f32; 2]], to: &[[f32; 2]]) -> Option<Self> {
         let all: Vec<usize> = (0..from.len().min(to.len())).collect();
-        let first = fit_subset(from, to, &all)?;
-        let res: Vec<f64> = all.iter().map(|&i| first.1(i)).collect();
+        let first = CentredFit::new(from, to, &all)?;
+        let res: Vec<f64> = all.iter().map(|&i| first.residual(from, to, i)).collect();
         let mut sorted = res.clone();
         sorted.sort_by(f64::total_cmp);
+        // The upper middle value (not `stats::median`'s mean of the two for an even count):
+        // the sweep numbers in the README were measured with it.
         let cut = 3.0 * sorted[sorted.len() / 2] + 1e-3;
         let inliers: Vec<usize> = all.into_iter().filter(|&i| res[i] <= cut).collect();
-        fit_subset(from, to, &inliers).map(|f| f.0)
+        CentredFit::new(from, to, &inliers).map(|f| Similarity {
+            c: f.c as f32,
+            s: f.s as f32,
+        })
     }
 }
 
-/// Residual of pair `i` under a fitted similarity.
-type PairResidual<'a> = Box<dyn Fn(usize) -> f64 + 'a>;
+/// A similarity fitted to the pairs `idx`, with the centroids it was fitted about.
+struct CentredFit {
+    c: f64,
+    s: f64,
+    from_mean: [f64; 2],
+    to_mean: [f64; 2],
+}
 
-fn fit_subset<'a>(
-    from: &'a [[f32; 2]],
-    to: &'a [[f32; 2]],
-    idx: &[usize],
-) -> Option<(Similarity, PairResidual<'a>)> {
-    if idx.len() < 8 {
-        return None;
+impl CentredFit {
+    fn new(from: &[[f32; 2]], to: &[[f32; 2]], idx: &[usize]) -> Option<Self> {
+        if idx.len() < 8 {
+            return None;
+        }
+        let n = idx.len() as f64;
+        let mean = |p: &[[f32; 2]]| {
+            idx.iter().fold([0.0f64; 2], |a, &i| {
+                [a[0] + f64::from(p[i][0]) / n, a[1] + f64::from(p[i][1]) / n]
+            })
+        };
+        let mut fit = Self {
+            c: 0.0,
+            s: 0.0,
+            from_mean: mean(from),
+            to_mean: mean(to),
+        };
+        let (mut num_c, mut num_s, mut den) = (0.0f64, 0.0f64, 0.0f64);
+        for &i in idx {
+            let ([px, py], [qx, qy]) = fit.centred(from, to, i);
+            // conj(p)·q
+            num_c += px * qx + py * qy;
+            num_s += px * qy - py * qx;
+            den += px * px + py * py;
+        }
+        if den < 1e-6 {
+            return None;
+        }
+        (fit.c, fit.s) = (num_c / den, num_s / den);
+        Some(fit)
     }
-    let n = idx.len() as f64;
-    let mean = |p: &[[f32; 2]]| {
-        idx.iter().fold([0.0f64; 2], |a, &i| {
-            [a[0] + f64::from(p[i][0]) / n, a[1] + f64::from(p[i][1]) / n]
-        })
-    };
-    let (mf, mt) = (mean(from), mean(to));
-    let (mut num_c, mut num_s, mut den) = (0.0f64, 0.0f64, 0.0f64);
-    for &i in idx {
-        let (px, py) = (f64::from(from[i][0]) - mf[0], f64::from(from[i][1]) - mf[1]);
-        let (qx, qy) = (f64::from(to[i][0]) - mt[0], f64::from(to[i][1]) - mt[1]);
-        // conj(p)·q
-        num_c += px * qx + py * qy;
-        num_s += px * qy - py * qx;
-        den += px * px + py * py;
+
+    /// Pair `i` about the centroids.
+    fn centred(&self, from: &[[f32; 2]], to: &[[f32; 2]], i: usize) -> ([f64; 2], [f64; 2]) {
+        let (f, t) = (self.from_mean, self.to_mean);
+        (
+            [f64::from(from[i][0]) - f[0], f64::from(from[i][1]) - f[1]],
+            [f64::from(to[i][0]) - t[0], f64::from(to[i][1]) - t[1]],
+        )
     }
-    if den < 1e-6 {
-        return None;
+
+    /// Distance of pair `i` from the fit.
+    fn residual(&self, from: &[[f32; 2]], to: &[[f32; 2]], i: usize) -> f64 {
+        let ([px, py], [qx, qy]) = self.centred(from, to, i);
+        (qx - (self.c * px - self.s * py)).hypot(qy - (self.s * px + self.c * py))
     }
-    let (c, s) = (num_c / den, num_s / den);
-    let sim = Similarity {
-        c: c as f32,
-        s: s as f32,
-    };
-    let res = move |i: usize| {
-        let (px, py) = (f64::from(from[i][0]) - mf[0], f64::from(from[i][1]) - mf[1]);
-        let (qx, qy) = (f64::from(to[i][0]) - mt[0], f64::from(to[i][1]) - mt[1]);
-        (qx - (c * px - s * py)).hypot(qy - (s * px + c * py))
-    };
-    Some((sim, Box::new(res)))
 }
 
 #[cfg(test)]
