@@ -3,7 +3,40 @@
 //! uses, so a fixed crash stays fixed without running a fuzzer. Also checks the zip checks'
 //! verdicts on the hand-made archives of the corpus.
 
+use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// The fuzzers run with `-rss_limit_mb=1024`; an input that makes a parser ask for more is a
+/// bug (a count from the file trusted before the bytes behind it). This allocator refuses
+/// anything past that budget, so such a regression aborts this test at once instead of
+/// swapping the machine to death.
+struct Budgeted;
+
+const BUDGET_BYTES: usize = 1 << 30;
+static LIVE: AtomicUsize = AtomicUsize::new(0);
+
+// SAFETY: forwards to the system allocator; only the accounting is added.
+unsafe impl GlobalAlloc for Budgeted {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let before = LIVE.fetch_add(layout.size(), Ordering::Relaxed);
+        if before + layout.size() > BUDGET_BYTES {
+            LIVE.fetch_sub(layout.size(), Ordering::Relaxed);
+            return std::ptr::null_mut();
+        }
+        // SAFETY: same layout contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        LIVE.fetch_sub(layout.size(), Ordering::Relaxed);
+        // SAFETY: `ptr` came from `alloc` above with this layout.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Budgeted = Budgeted;
 
 /// A fuzz entry point.
 type Harness = fn(&[u8]);

@@ -8,7 +8,7 @@ use mp4_atom::{Avcc, Codec as SampleEntry, Decode, Moov, Trak};
 use super::error::VideoError;
 use super::limits::{MAX_MOOV_BYTES, VideoLimits};
 use super::sample_table::{self, Sample};
-use super::{Codec, Container};
+use super::{Codec, Container, prune};
 
 /// Everything the decoder needs about the chosen track.
 pub(crate) struct Track {
@@ -165,19 +165,22 @@ pub(crate) fn open<R: Read + Seek>(r: &mut R, limits: &VideoLimits) -> Result<Tr
     let mut buf = vec![0u8; len as usize];
     r.seek(SeekFrom::Start(moov.start))?;
     r.read_exact(&mut buf)?;
+    let pruned = prune::prune(&mut buf)?;
     let moov = Moov::decode(&mut buf.as_slice())?;
     drop(buf);
 
-    let trak = moov
+    let (index, trak) = moov
         .trak
         .iter()
-        .find(|t| &<[u8; 4]>::from(t.mdia.hdlr.handler) == b"vide")
+        .enumerate()
+        .find(|(_, t)| &<[u8; 4]>::from(t.mdia.hdlr.handler) == b"vide")
         .ok_or(VideoError::NoVideoTrack)?;
     let entry =
         trak.mdia.minf.stbl.stsd.codecs.first().ok_or_else(|| {
             VideoError::Malformed("the video track has no sample description".into())
         })?;
-    let (codec, avcc, width, height) = describe(entry)?;
+    let original = pruned.first_entry.get(index).copied().flatten();
+    let (codec, avcc, width, height) = describe(entry, original)?;
     let rotation_deg = rotation(trak)?;
     let timescale = trak.mdia.mdhd.timescale;
     if timescale == 0 {
@@ -221,8 +224,12 @@ fn read_up_to<R: Read>(r: &mut R, buf: &mut [u8]) -> Result<usize, VideoError> {
     Ok(n)
 }
 
-/// The codec of a sample entry, its `avcC` and its coded size.
-fn describe(entry: &SampleEntry) -> Result<(Codec, Option<Avcc>, u32, u32), VideoError> {
+/// The codec of a sample entry, its `avcC` and its coded size. `original` is the entry's code
+/// before [`prune`] made every entry but H.264's opaque.
+fn describe(
+    entry: &SampleEntry,
+    original: Option<[u8; 4]>,
+) -> Result<(Codec, Option<Avcc>, u32, u32), VideoError> {
     let unsupported = |fourcc: &str, name: &str| Codec::Unsupported {
         fourcc: fourcc.into(),
         name: name.into(),
@@ -230,22 +237,19 @@ fn describe(entry: &SampleEntry) -> Result<(Codec, Option<Avcc>, u32, u32), Vide
     let (codec, avcc) = match entry {
         SampleEntry::Avc1(a) => (super::h264::codec_of(&a.avcc, "avc1"), Some(a.avcc.clone())),
         SampleEntry::Avc3(a) => (super::h264::codec_of(&a.avcc, "avc3"), Some(a.avcc.clone())),
-        SampleEntry::Jpeg(_) => (
-            Codec::Mjpeg {
-                fourcc: "jpeg".into(),
-            },
-            None,
-        ),
-        SampleEntry::Hvc1(_) => (unsupported("hvc1", "HEVC (H.265)"), None),
-        SampleEntry::Hev1(_) => (unsupported("hev1", "HEVC (H.265)"), None),
-        SampleEntry::Av01(_) => (unsupported("av01", "AV1"), None),
-        SampleEntry::Vp09(_) => (unsupported("vp09", "VP9"), None),
-        SampleEntry::Vp08(_) => (unsupported("vp08", "VP8"), None),
-        SampleEntry::Uncv(_) => (unsupported("uncv", "uncompressed video"), None),
         SampleEntry::Unknown(fourcc, body) => {
-            let f = fourcc.to_string();
-            let codec = match &<[u8; 4]>::from(*fourcc) {
-                b"mjpa" | b"mjpb" => Codec::Mjpeg { fourcc: f },
+            let code = match original {
+                Some(code) if <[u8; 4]>::from(*fourcc) == prune::OPAQUE_ENTRY => code,
+                _ => <[u8; 4]>::from(*fourcc),
+            };
+            let f = String::from_utf8_lossy(&code).into_owned();
+            let codec = match &code {
+                b"jpeg" | b"mjpa" | b"mjpb" => Codec::Mjpeg { fourcc: f },
+                b"hvc1" | b"hev1" => unsupported(&f, "HEVC (H.265)"),
+                b"av01" => unsupported(&f, "AV1"),
+                b"vp09" => unsupported(&f, "VP9"),
+                b"vp08" => unsupported(&f, "VP8"),
+                b"uncv" => unsupported(&f, "uncompressed video"),
                 b"apch" | b"apcn" | b"apcs" | b"apco" | b"ap4h" | b"ap4x" => {
                     unsupported(&f, "Apple ProRes")
                 }

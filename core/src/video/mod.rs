@@ -17,6 +17,7 @@ mod error;
 mod h264;
 mod limits;
 mod overlap;
+mod prune;
 mod reader;
 mod reorder;
 mod sample_table;
