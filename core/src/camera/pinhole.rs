@@ -236,8 +236,8 @@ impl CameraModel for PinholeRadTan {
     /// the folded-back branch the way a plain Newton start from `x″` does for strong
     /// distortion. Then Newton's method on the full 2×2 system `distort(x) = x″` (tangential terms
     /// included) polishes that guess, halving steps that would not reduce the residual or would
-    /// leave the domain. Converged when the residual is below [`UNPROJECT_TOLERANCE`] within
-    /// [`UNPROJECT_MAX_ITERATIONS`] steps; `None` otherwise.
+    /// leave the domain. Converged when the residual is below [`UNPROJECT_TOLERANCE`] times
+    /// `max(1, |x″|)` within [`UNPROJECT_MAX_ITERATIONS`] steps; `None` otherwise.
     fn unproject(&self, px: &Vector2<f64>) -> Option<Vector3<f64>> {
         let [fx, fy, cx, cy, k1, k2, _, _, k3] = self.params;
         let target = Vector2::new((px.x - cx) / fx, (px.y - cy) / fy);
@@ -273,10 +273,13 @@ impl CameraModel for PinholeRadTan {
         } else {
             target
         };
+        // Relative to the target, as in `solve_increasing`: far out on a strongly distorted
+        // lens |x″| reaches 10³ and rounding alone leaves residuals above 10⁻¹².
+        let tol = UNPROJECT_TOLERANCE * rd.max(1.0);
         let mut cur = self.distort(x.x, x.y);
         let mut res = cur.d - target;
         for _ in 0..UNPROJECT_MAX_ITERATIONS {
-            if res.norm() <= UNPROJECT_TOLERANCE {
+            if res.norm() <= tol {
                 // The same domain as `project`: no ray from the ill-conditioned band at the fold.
                 return (x.norm_squared() < self.max_r2 * FOLD_MARGIN)
                     .then(|| Vector3::new(x.x, x.y, 1.0).normalize());
