@@ -36,38 +36,52 @@ struct BoxHeader {
     end: u64,
 }
 
-/// Reads the box header at `pos`; `None` when fewer than 8 bytes are left.
+/// A box header parsed from `head`, the box's first bytes (16 are enough), with `left` bytes
+/// from the box's start to the end of what contains it: `(code, declared size, header length)`.
+/// `None` when `left` is too short for the header. Shared by the top-level scan below and the
+/// index walk of [`super::prune`].
+pub(super) fn parse_header(
+    head: &[u8],
+    left: u64,
+) -> Result<Option<([u8; 4], u64, u64)>, VideoError> {
+    if left < 8 || head.len() < 8 {
+        return Ok(None);
+    }
+    let kind = [head[4], head[5], head[6], head[7]];
+    let (size, header_len) = match u32::from_be_bytes([head[0], head[1], head[2], head[3]]) {
+        0 => (left, 8),
+        1 => match head.get(8..16) {
+            Some(l) if left >= 16 => (
+                u64::from_be_bytes([l[0], l[1], l[2], l[3], l[4], l[5], l[6], l[7]]),
+                16,
+            ),
+            _ => return Ok(None),
+        },
+        s => (u64::from(s), 8),
+    };
+    if size < header_len {
+        return Err(VideoError::Malformed(format!(
+            "box '{}' declares {size} bytes, less than its header",
+            String::from_utf8_lossy(&kind)
+        )));
+    }
+    Ok(Some((kind, size, header_len)))
+}
+
+/// Reads the box header at `pos`; `None` when too few bytes are left for one.
 fn read_header<R: Read + Seek>(
     r: &mut R,
     pos: u64,
     file_len: u64,
 ) -> Result<Option<BoxHeader>, VideoError> {
-    if file_len.saturating_sub(pos) < 8 {
-        return Ok(None);
-    }
+    let left = file_len.saturating_sub(pos);
+    let mut head = [0u8; 16];
+    let take = left.min(16) as usize;
     r.seek(SeekFrom::Start(pos))?;
-    let mut h = [0u8; 8];
-    r.read_exact(&mut h)?;
-    let size32 = u32::from_be_bytes([h[0], h[1], h[2], h[3]]);
-    let kind = [h[4], h[5], h[6], h[7]];
-    let (size, header_len) = match size32 {
-        0 => (file_len - pos, 8),
-        1 => {
-            if file_len - pos < 16 {
-                return Ok(None);
-            }
-            let mut l = [0u8; 8];
-            r.read_exact(&mut l)?;
-            (u64::from_be_bytes(l), 16)
-        }
-        s => (u64::from(s), 8),
+    r.read_exact(&mut head[..take])?;
+    let Some((kind, size, _)) = parse_header(&head[..take], left)? else {
+        return Ok(None);
     };
-    if size < header_len {
-        return Err(VideoError::Malformed(format!(
-            "box '{}' at byte {pos} declares {size} bytes, less than its header",
-            String::from_utf8_lossy(&kind)
-        )));
-    }
     let end = pos
         .checked_add(size)
         .ok_or_else(|| VideoError::Malformed("a box size overflows".into()))?;

@@ -10,6 +10,7 @@
 //! code (mp4-atom keeps those as raw bytes) after its real code has been noted. What is left is
 //! the short list of boxes below, whose decoders each consume bytes for every entry they count.
 
+use super::demux::parse_header;
 use super::error::VideoError;
 
 /// Children kept under each container the demuxer walks into; everything else becomes `free`.
@@ -58,36 +59,24 @@ struct Child {
     end: usize,
 }
 
-/// The boxes packed in `buf[from..to]`, in order. A remainder shorter than a box header is
+/// The boxes packed in `buf[from..to]`, in order. A remainder too short for a box header is
 /// padding (QuickTime writes a 4-byte terminator) and is ignored, as mp4-atom does.
 fn children(buf: &[u8], from: usize, to: usize) -> Result<Vec<Child>, VideoError> {
     let mut out = Vec::new();
     let mut pos = from;
-    while to - pos >= 8 {
-        let word = |at: usize| u32::from_be_bytes([buf[at], buf[at + 1], buf[at + 2], buf[at + 3]]);
-        let kind = [buf[pos + 4], buf[pos + 5], buf[pos + 6], buf[pos + 7]];
-        let (size, header) = match word(pos) {
-            0 => (to - pos, 8),
-            1 => {
-                if to - pos < 16 {
-                    return Err(bad("a 64-bit box size is cut short".into()));
-                }
-                let big = (u64::from(word(pos + 8)) << 32) | u64::from(word(pos + 12));
-                (usize::try_from(big).unwrap_or(usize::MAX), 16)
-            }
-            s => (s as usize, 8),
-        };
-        if size < header || size > to - pos {
+    while let Some((kind, size, header)) = parse_header(&buf[pos..to], (to - pos) as u64)? {
+        let left = to - pos;
+        let size = usize::try_from(size).unwrap_or(usize::MAX);
+        if size > left {
             return Err(bad(format!(
-                "box '{}' inside the index declares {size} bytes where {} are left",
-                String::from_utf8_lossy(&kind),
-                to - pos
+                "box '{}' inside the index declares {size} bytes where {left} are left",
+                String::from_utf8_lossy(&kind)
             )));
         }
         out.push(Child {
             kind,
             start: pos,
-            body: pos + header,
+            body: pos + header as usize,
             end: pos + size,
         });
         pos += size;

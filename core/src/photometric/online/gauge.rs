@@ -172,10 +172,8 @@ pub(super) fn choose_gauge(
             };
         }
     }
-    // Local steps: the independent starts above leave each grid fit short of convergence by
-    // different amounts, enough to move the vertex by a few hundredths (tuning#3, f(0.5) =
-    // 0.81: chosen 0.781, exposure error 4.9 %). Fits warm-started from the choice at m and
-    // m ± LOCAL_STEP share that state, so their costs compare cleanly.
+    // Local steps (module notes): fits at m and m ± LOCAL_STEP warm-started from the choice
+    // share its state, so their costs compare cleanly where the grid's did not.
     for _ in 0..LOCAL_ROUNDS {
         let m = choice.gauge;
         let xs = [m - LOCAL_STEP, m, m + LOCAL_STEP];
