@@ -38,7 +38,10 @@
 //!   bias Levin et al. 2009 describe;
 //! * the cleaning threshold relative to the mean of the `ks/2` (or `ks`) largest entries
 //!   instead of the maximum, so that a faint loop next to a bright dwell point survives:
-//!   15 (12) of 44 — the noise carpet survives with it.
+//!   15 (12) of 44 — the noise carpet survives with it;
+//! * 10 or 20 alternations at the full-resolution level only (the trace shows the support
+//!   still thinning there on the failing large kernels): 21 and 16 of 44, at 1.6× and 3× the
+//!   time.
 //!
 //! Most TUNE failures are on chessboards. There the failure is structural: the board is
 //! invariant under translation by its lattice vectors, so a part of the kernel moved by one
