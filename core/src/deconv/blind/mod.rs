@@ -41,7 +41,11 @@
 //!   15 (12) of 44 — the noise carpet survives with it;
 //! * 10 or 20 alternations at the full-resolution level only (the trace shows the support
 //!   still thinning there on the failing large kernels): 21 and 16 of 44, at 1.6× and 3× the
-//!   time.
+//!   time;
+//! * the coarsest kernel started as a line along the direction with the longest
+//!   autocorrelation lobe ([`estimate_blur_extent`]'s per-direction lag) instead of a 2 px
+//!   segment: 22 of 44 (chessboards 5 of 24, natural photos 17 of 20 as before), within one
+//!   case of the baseline at 1.6× the time, so not kept.
 //!
 //! Most TUNE failures are on chessboards. There the failure is structural: the board is
 //! invariant under translation by its lattice vectors, so a part of the kernel moved by one
