@@ -11,7 +11,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::emor::EMOR_DIM;
-use super::joint::{JointConfig, JointState, Obs, refine};
+use super::joint::{Censor, JointConfig, JointState, Obs, refine};
 use super::response::ResponseModel;
 use super::{FitDiagnostics, PHOTOMETRIC_SCHEMA, PhotoImage, PhotometricModel, check_stack};
 use crate::error::{CoreError, CoreResult};
@@ -137,6 +137,7 @@ pub fn photometric_response(
                         r2: 0.0,
                         value: v as f32,
                         weight: 1.0,
+                        censor: Censor::Exact,
                     });
                     logs.push(g0.eval(v).max(1e-6).ln() - log_e[j]);
                 }

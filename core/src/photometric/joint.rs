@@ -12,6 +12,8 @@
 //! (`f(x^{1/γ})`, `V^γ`, `e^γ`, `L^γ` explain the same images) is fixed by the constraint
 //! `f(0.5) = gamma_gauge` (`f⁻¹(m) = 0.5`), added as a stiff residual; monotonicity of `f` is a
 //! stiff one-sided penalty on every basis segment.
+//!
+//! A clipped sample is a bound rather than a value ([`Censor`]): its residual is one-sided.
 
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
@@ -32,6 +34,74 @@ pub(crate) struct Obs {
     pub value: f32,
     /// Confidence weight (0..1).
     pub weight: f32,
+    /// Whether `value` is a measurement or only a bound (a clipped sample).
+    pub censor: Censor,
+}
+
+/// What a sample says about the model's prediction `f`.
+///
+/// A clipped pixel still says that the point was at least as bright as the clip level at that
+/// exposure; dropping it truncates the noise distribution near the clip (a selection bias) and
+/// throws that bound away. A censored sample keeps it as a one-sided residual, the hinge
+/// (noise-free) limit of the Tobit likelihood (J. Tobin, "Estimation of relationships for
+/// limited dependent variables", Econometrica 1958): zero cost and no Jacobian while the
+/// prediction is beyond the bound, the Huber cost of the shortfall otherwise.
+///
+/// The online fit censors a sample at the cut (`high_cut` / `low_cut`) when it and its whole
+/// bilinear support are on that side of it. Measured first on `diag_tests.rs`'s
+/// `diag_saturated` (about half the pixels clipped; response / vignetting / exposure error,
+/// common scale, gauge at the truth): with ground-truth observations the truncation alone costs
+/// little, noise-free 0 / 0 / 0 % → with noise 0.0006 / 0.0006 / 0.20 %, and censoring halves
+/// that (0.0003 / 0.0004 / 0.11 %); on the linear camera the floor is EMoR-4's span (0.0043 /
+/// 0.0013 / 0.83 % noise-free, unchanged). With tracks it changes little there either (+0.8 %
+/// samples; 0.0005 / 0.0014 / 0.24 % → 0.0004 / 0.0014 / 0.25 %): the tracker does not follow
+/// points into the clipped areas, so truncation is not what limits those sequences. Tuning
+/// split of `examples/photometric_sweep.rs`: medians 0.0010 / 0.0020 / 0.48 % → 0.0009 /
+/// 0.0018 / 0.42 %, still 11 of 12 within targets; the case it helps is tuning#3, whose
+/// exposure falls ~20× over the first frames (0.0011 / 0.0035 / 0.90 % → 0.0008 / 0.0009 /
+/// 0.38 %); tuning#0 moved 0.0005 / 0.0012 / 0.23 % → 0.0004 / 0.0013 / 0.34 %.
+///
+/// Rejected on the tuning split: also censoring samples whose support blends clipped and
+/// unclipped pixels, at their interpolated value (a valid lower bound; medians 0.0014 / 0.0021
+/// / 0.55 %, tuning#0 0.0018 / 0.0021 / 1.05 %), and censoring a noise band below the cut as
+/// well (4 levels: 9 of 12 within targets; 2 levels: 10 of 12): on a strongly concave camera
+/// (tuning#1, f(0.5) = 0.97) the top levels span a wide range of irradiance, and the band
+/// throws that information away (response error 0.0034 → 0.015–0.019).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(crate) enum Censor {
+    /// `value` was measured.
+    #[default]
+    Exact,
+    /// Clipped high: the true value is at least `value`.
+    AtLeast,
+    /// Clipped low: the true value is at most `value`.
+    AtMost,
+}
+
+impl Obs {
+    /// Residual `value − f`; for a censored sample only the part that violates its bound (so
+    /// zero, with a zero Jacobian, where the prediction is beyond the clip level).
+    #[inline]
+    pub(crate) fn residual(&self, f: f64) -> f64 {
+        let r = f64::from(self.value) - f;
+        match self.censor {
+            Censor::Exact => r,
+            Censor::AtLeast => r.max(0.0),
+            Censor::AtMost => r.min(0.0),
+        }
+    }
+
+    /// Whether `value` was measured (not a censored bound).
+    #[inline]
+    pub(crate) fn measured(&self) -> bool {
+        self.censor == Censor::Exact
+    }
+
+    /// Whether the sample adds nothing at residual `r` (a censored sample within its bound).
+    #[inline]
+    pub(crate) fn inactive(&self, r: f64) -> bool {
+        self.censor != Censor::Exact && r == 0.0
+    }
 }
 
 /// What is free and how the cost looks.
@@ -63,7 +133,8 @@ pub(crate) struct JointState {
 pub(crate) struct JointReport {
     pub iterations: usize,
     pub converged: bool,
-    /// Unweighted RMS of the residuals of the inliers (|r| ≤ 3·huber), normalised intensity.
+    /// Unweighted RMS of the residuals of the measured (uncensored) inliers (|r| ≤ 3·huber),
+    /// normalised intensity.
     pub rms: f64,
     pub inliers: usize,
     /// Final robust cost (data term plus penalties).
@@ -134,7 +205,7 @@ fn total_cost(obs: &[Obs], cfg: &JointConfig, s: &JointState, wpen: f64) -> f64 
                     let e = s.log_e[o.frame as usize].exp()
                         * vignette(&s.v, f64::from(o.r2))
                         * s.log_l[o.point as usize].exp();
-                    let r = f64::from(o.value) - emor_eval(&curve, e).f;
+                    let r = o.residual(emor_eval(&curve, e).f);
                     f64::from(o.weight) * huber_rho(r, cfg.huber)
                 })
                 .sum::<f64>()
@@ -306,7 +377,7 @@ pub(crate) fn refine(
             * vignette(&state.v, f64::from(o.r2))
             * state.log_l[o.point as usize].exp();
         let r = f64::from(o.value) - emor_eval(&curve, e).f;
-        if r.abs() <= 3.0 * cfg.huber && o.weight > 0.0 {
+        if o.measured() && r.abs() <= 3.0 * cfg.huber && o.weight > 0.0 {
             ss += r * r;
             n += 1;
         }
@@ -423,7 +494,10 @@ fn accumulate(
             let vg = vignette(&state.v, r2);
             let e = state.log_e[o.frame as usize].exp() * vg * l;
             let ev = emor_eval(curve, e);
-            let r = f64::from(o.value) - ev.f;
+            let r = o.residual(ev.f);
+            if o.inactive(r) {
+                continue;
+            }
             let wh = if r.abs() <= cfg.huber {
                 1.0
             } else {

@@ -363,7 +363,7 @@ fn params_serde_and_validation() {
 /// the rendered frames): recovers the model from the mean-response start.
 #[test]
 fn joint_refinement_from_ideal_tracks() {
-    use super::joint::{JointConfig, JointState, Obs, refine};
+    use super::joint::{Censor, JointConfig, JointState, Obs, refine};
     let cam = SynthCamera::reference(160, 120, 11);
     let seq = render_ae_sequence(&cam, 80);
     let vm = cam.vignette_model();
@@ -401,6 +401,7 @@ fn joint_refinement_from_ideal_tracks() {
                     r2: vm.r2(x, y) as f32,
                     value: val as f32,
                     weight: 1.0,
+                    censor: Censor::Exact,
                 });
                 n += 1;
             }

@@ -149,7 +149,7 @@ pub(super) fn fit_center(
     let residual = |s: &St, o: &Obs, p: [f32; 2]| {
         let r2 = f64::from(r2_at(p, s.c, rad));
         let e = s.log_e[o.frame as usize].exp() * vig(&s.v, r2) * s.log_l[o.point as usize].exp();
-        f64::from(o.value) - emor_eval(&curve, e).f
+        o.residual(emor_eval(&curve, e).f)
     };
     let rho = |r: f64| {
         let a = r.abs();
@@ -191,14 +191,17 @@ pub(super) fn fit_center(
                 let vg = vig(&s.v, r2);
                 let e = s.log_e[o.frame as usize].exp() * vg * l;
                 let ev = emor_eval(&curve, e);
-                let r = f64::from(o.value) - ev.f;
+                let r = o.residual(ev.f);
+                if o.inactive(r) {
+                    continue;
+                }
                 let wh = if r.abs() <= huber {
                     1.0
                 } else {
                     huber / r.abs()
                 };
                 let w = f64::from(o.weight) * wh;
-                if o.weight > 0.0 {
+                if o.weight > 0.0 && o.measured() {
                     ss += w * r * r;
                     n += 1;
                 }

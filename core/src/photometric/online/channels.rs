@@ -190,6 +190,10 @@ fn sample_channel(
             plane.data.iter().map(|&v| f32::from(v) * s).collect(),
         );
         for &i in idx {
+            // Only where luma was measured: the clipping below is this channel's own test.
+            if !seen.obs[i].measured() {
+                continue;
+            }
             let [x, y] = seen.pos[i];
             let Some([v, gx, gy]) = level.sample3(x, y) else {
                 continue;

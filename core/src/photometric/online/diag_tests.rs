@@ -3,7 +3,7 @@
 //! `cargo test -p caliper-core --release --lib online::diag_tests -- --ignored --nocapture`
 
 use super::{Observations, OnlineParams, fit, observe};
-use crate::photometric::joint::Obs;
+use crate::photometric::joint::{Censor, Obs};
 use crate::photometric::metrics::{
     exposure_error_common_pct, exposure_error_pct, gamma_align, vignette_rmse,
 };
@@ -88,7 +88,9 @@ fn drift(
         let d = ((x - f64::from(p[0])).powi(2) + (y - f64::from(p[1])).powi(2)).sqrt();
         let age = (o.frame as usize - first.3) / 10;
         by_age[age.min(7)].push(d);
-        if let Some(val) = bilinear(&frames[o.frame as usize], x, y)
+        if !o.measured() {
+            obs.push(*o);
+        } else if let Some(val) = bilinear(&frames[o.frame as usize], x, y)
             && val > 3.0 / 255.0
             && val < 250.0 / 255.0
         {
@@ -157,6 +159,7 @@ fn gt_obs(
         );
         let l = tex.radiance(u, v);
         let mut n = 0;
+        let start = obs.len();
         for k in 0..nf {
             let t = k as f64;
             let (tx, ty) = (
@@ -187,22 +190,31 @@ fn gt_obs(
                         + (im.get(x0, y0 + 1) * (1.0 - fx) + im.get(x0 + 1, y0 + 1) * fx) * fy
                 }
             };
-            if val <= 3.0 / 255.0 || val >= 250.0 / 255.0 {
+            // `DIAG_CENSOR=1`: clipped values stay as one-sided bounds at the cut.
+            let (value, censor) = if val <= 3.0 / 255.0 {
+                (3.0 / 255.0, Censor::AtMost)
+            } else if val >= 250.0 / 255.0 {
+                (250.0 / 255.0, Censor::AtLeast)
+            } else {
+                (val, Censor::Exact)
+            };
+            if censor != Censor::Exact && std::env::var_os("DIAG_CENSOR").is_none() {
                 continue;
             }
             obs.push(Obs {
                 point: np,
                 frame: k as u32,
                 r2: vm.r2(x, y) as f32,
-                value: val as f32,
+                value: value as f32,
                 weight: 1.0,
+                censor,
             });
-            n += 1;
+            n += usize::from(censor == Censor::Exact);
         }
         if n >= 2 {
             np += 1;
         } else {
-            obs.truncate(obs.len() - n);
+            obs.truncate(start);
         }
     }
     Observations {

@@ -5,11 +5,12 @@
 //! 1. [`klt`]: gain-robust KLT tracks (Kim & Pollefeys 2008) on a pyramid, re-detecting
 //!    Shi-Tomasi corners on a grid when tracks are lost; every track gives a few pixel samples
 //!    around its centre, weighted down where the gradient is steep. Each match is re-aligned to
-//!    the patch where the track was born, clipped pixels are left out, the brightness model has
-//!    a quadratic term, the birth patch follows the video's roll and zoom ([`similarity`]), and
-//!    tracks end after [`MAX_TRACK_AGE`] frames: track drift and slide (not the renderer, the
-//!    noise or the fit: with true positions the fit recovers response / vignetting / exposures
-//!    to 0.0002 / 0.0008 / 0.4 %, `diag_tests.rs`) biased the fit most.
+//!    the patch where the track was born, clipped pixels are left out of the match (the fit
+//!    keeps them as bounds, [`super::joint::Censor`]), the brightness model has a quadratic
+//!    term, the birth patch follows the video's roll and zoom ([`similarity`]), and tracks end
+//!    after [`MAX_TRACK_AGE`] frames: track drift and slide (not the renderer, the noise or the
+//!    fit: with true positions the fit recovers response / vignetting / exposures to 0.0002 /
+//!    0.0008 / 0.4 %, `diag_tests.rs`) biased the fit most.
 //! 2. Exposures: frame-to-frame log ratios from the tracks under the mean EMoR response
 //!    (a linear problem), then a Gauss-Newton pass on exposures and radiances only.
 //! 3. Joint Huber Levenberg-Marquardt over response (EMoR-4), vignetting (`v1..v3`),
@@ -38,7 +39,7 @@ pub use channels::{ChannelResponse, Channels, photometric_online_rgb};
 use serde::{Deserialize, Serialize};
 
 use super::emor::EMOR_DIM;
-use super::joint::{JointConfig, JointState, Obs, gauge_start, refine};
+use super::joint::{Censor, JointConfig, JointState, Obs, gauge_start, refine};
 use super::response::ResponseModel;
 use super::vignette::VignetteModel;
 use super::{FitDiagnostics, PHOTOMETRIC_SCHEMA, PhotoImage, PhotometricModel, check_stack};
@@ -347,27 +348,38 @@ pub(crate) fn observe(
                 ) else {
                     continue;
                 };
-                if f64::from(v) <= params.low_cut || f64::from(v) >= params.high_cut {
-                    continue;
-                }
-                // A clipped pixel in the interpolation support biases the sample.
+                // A sample at or beyond a cut with its whole bilinear support on that side is a
+                // bound (censored, see `Censor`); one that blends clipped and unclipped pixels
+                // is biased and left out.
                 let (x0, y0) = (x.floor() as usize, y.floor() as usize);
                 let i0 = y0 * w + x0;
-                if [i0, i0 + 1, i0 + w, i0 + w + 1].iter().any(|&i| {
-                    l0.data.get(i).is_none_or(|&d| {
-                        f64::from(d) <= params.low_cut || f64::from(d) >= params.high_cut
-                    })
-                }) {
+                let [Some(a), Some(b), Some(c), Some(d)] =
+                    [i0, i0 + 1, i0 + w, i0 + w + 1].map(|i| l0.data.get(i).copied())
+                else {
                     continue;
-                }
+                };
+                let px = [v, a, b, c, d];
+                let low = px.iter().any(|&p| f64::from(p) <= params.low_cut);
+                let high = px.iter().any(|&p| f64::from(p) >= params.high_cut);
+                let (value, censor) = match (low, high) {
+                    (false, false) => (v, Censor::Exact),
+                    (false, true) if f64::from(v) >= params.high_cut => {
+                        (params.high_cut as f32, Censor::AtLeast)
+                    }
+                    (true, false) if f64::from(v) <= params.low_cut => {
+                        (params.low_cut as f32, Censor::AtMost)
+                    }
+                    _ => continue,
+                };
                 let g2 = (gx * gx + gy * gy) / (GRAD_HALF_WEIGHT * GRAD_HALF_WEIGHT);
                 pos.push([x, y]);
                 obs.push(Obs {
                     point: (t.id * n_off + o) as u32,
                     frame: k as u32,
                     r2: vig0.r2(f64::from(x), f64::from(y)) as f32,
-                    value: v,
+                    value,
                     weight: 1.0 / (1.0 + g2),
+                    censor,
                 });
             }
         }
@@ -392,7 +404,7 @@ pub(crate) fn observe(
     drop(order);
     let n_raw = (track_len.len() * n_off) as u32;
     let mut count = vec![0u32; n_raw as usize];
-    for o in &obs {
+    for o in obs.iter().filter(|o| o.measured()) {
         count[o.point as usize] += 1;
     }
     let eligible: Vec<u32> = (0..n_raw).filter(|&p| count[p as usize] >= 2).collect();
@@ -450,7 +462,7 @@ pub(crate) fn fit(
     let mut ratios: Vec<Vec<f64>> = vec![Vec::new(); nf];
     for pair in obs.windows(2) {
         let (a, b) = (&pair[0], &pair[1]);
-        if a.point == b.point && b.frame == a.frame + 1 {
+        if a.point == b.point && b.frame == a.frame + 1 && a.measured() && b.measured() {
             ratios[b.frame as usize].push(lg(b) - lg(a));
         }
     }
@@ -467,7 +479,7 @@ pub(crate) fn fit(
     }
     let mut log_l = vec![0.0; n_points as usize];
     let mut acc = vec![(0.0, 0.0); n_points as usize];
-    for o in &obs {
+    for o in obs.iter().filter(|o| o.measured()) {
         let a = &mut acc[o.point as usize];
         a.0 += lg(o) - log_e[o.frame as usize];
         a.1 += 1.0;
