@@ -35,6 +35,8 @@ pub mod synth;
 mod vignette;
 
 #[cfg(test)]
+mod censor_tests;
+#[cfg(test)]
 mod spline_tests;
 #[cfg(test)]
 mod tests;
