@@ -15,6 +15,39 @@
 //! / 20–29 / 30–39 frames: 34k / 15k / 7k / 4k), so few points cross enough radii. With the
 //! gauge chosen from the data: 0.0020 / 0.0055 / 0.54 % (steps, linear) and 0.0004 / 0.0019 /
 //! 0.56 % (sweep, mean EMoR response).
+//!
+//! Track re-association, tried and rejected (not in the code): a track lost by the tracker
+//! (not one ended at `MAX_TRACK_AGE`) left a *ghost* carried by the median frame-to-frame
+//! motion of its 6 nearest tracked neighbours for up to 20 frames; each frame a ghost was
+//! re-aligned to its own birth template with its birth roll and zoom (`refine_to_template`,
+//! the tracker's residual test), accepted within 1 px of its prediction and with a normalised
+//! correlation ≥ 0.95 over the pixels unclipped in both, and continued as a new track with the
+//! old point ids (one radiance unknown). On `diag_saturated` (`DIAG_SCRIPTED=1`, gauge at the
+//! truth; response / vignetting / exposure with the common scale), reviving anywhere ≥ 3 px
+//! from a live track, or only in empty re-detection cells: steps (linear) 0.0054 / 0.0074 /
+//! 1.19 % → 0.0065 / 0.0048 / 1.40 % and 0.0061 / 0.0050 / 1.23 %; sweep (mean response)
+//! 0.0004 / 0.0020 / 0.56 % → 0.0007 / 0.0007 / 0.41 % and 0.0004 / 0.0008 / 0.45 %. So the
+//! span of the points is what the vignetting lacked. But most points were lost and re-found
+//! again and again (31k / 37k merges against 2.4k / 1.9k fresh tracks anywhere, 24k / 26k in
+//! cells: the pyramid match fails where a level-0 re-alignment from the neighbours' motion
+//! succeeds), and the revived positions are worse: drift p90 0.24 px → 0.31–0.51 px, growing
+//! with the span. On the sweep's tuning split (baseline 11/12 within the targets, medians
+//! 0.0009 / 0.0018 / 0.42 %, CPU median 5.9 s per case):
+//! * anywhere: accuracy targets met on 10/12 (tuning#3: vignetting 0.0111, exposure 1.85 %),
+//!   medians 0.0021 / 0.0022 / 0.66 %, CPU median 8.4 s, worst 10.5 s (more tracks and samples);
+//! * in empty cells: 9/12 (tuning#1 response 0.0056, tuning#4 0.0061), 0.0021 / 0.0024 /
+//!   0.66 %, CPU 7.0 s;
+//! * in cells, strict (correlation ≥ 0.99, ≤ 0.5 px, ≤ 10 frames): 9/12 (tuning#1 response
+//!   0.0066, tuning#4 0.0054), 0.0014 / 0.0014 / 0.40 %, CPU 6.4 s;
+//! * strict, and only ghosts whose predicted 9×9 patch is at least a quarter clipped (lost to
+//!   clipping): 10/12, 0.0017 / 0.0022 / 0.52 %, CPU 5.7 s. Cases without such losses are
+//!   unchanged; the two most clipped tuning cases gain (tuning#0 vignetting 0.0013 → 0.0004,
+//!   tuning#5 0.0013 → 0.0003), but tuning#4 (1.5 % clipped) loses (response 0.0008 → 0.0055,
+//!   exposure 0.25 → 1.02 %).
+//!
+//! A false or imprecise re-association ties two radiances; the tuning split says the accepted
+//! ones still include such cases. Untried: checking a re-found ghost forward-backward or over
+//! a few frames before merging, or merging only the centre sample.
 
 use super::{Observations, OnlineParams, fit, observe};
 use crate::photometric::joint::{Censor, Obs};
