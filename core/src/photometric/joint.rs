@@ -65,8 +65,7 @@ pub(crate) struct Obs {
 /// saturated sequences still miss, eval#1 exposure 2.49 → 2.38 %, eval#6 vignetting 0.0123 →
 /// 0.0118, eval#9 0.0116 → 0.0101, eval#10 exposure 2.03 → 2.12 %; medians 0.0012 / 0.0036 /
 /// 0.67 % → 0.0013 / 0.0035 / 0.69 %. Shared `ae_seq_seed0`: 0.0001 / 0.0004 / 0.15 % →
-/// 0.0001 / 0.0004 / 0.17 %. CPU time per sequence unchanged (eval#2 took 10.6 s of wall time
-/// once on the loaded machine, 6.7 s CPU; 7.3 s when run again).
+/// 0.0001 / 0.0004 / 0.17 %. CPU time per sequence unchanged.
 ///
 /// Rejected on the tuning split: also censoring samples whose support blends clipped and
 /// unclipped pixels, at their interpolated value (a valid lower bound; medians 0.0014 /

@@ -224,6 +224,7 @@ pub fn photometric_online(
 }
 
 /// Samples of tracked scene points, sorted by point (renumbered densely) then frame.
+#[derive(Clone)]
 pub(crate) struct Observations {
     pub obs: Vec<Obs>,
     pub n_points: u32,
