@@ -40,7 +40,10 @@
 //!
 //! Environment: `CALIPER_BLIND_DATA` (data root), `BLIND_KS` / `BLIND_ITERS` (override
 //! `kernel_size` / `iterations_per_level`, for experiments), `BLIND_ORACLE=F` (window = F × the
-//! true kernel side: the ceiling of size estimation), `BLIND_PROFILES=1` (with `size`: print the
+//! true kernel side: the ceiling of size estimation), `BLIND_NOSAT=1` (every pixel linear in
+//! both solves: `saturation: null`), `BLIND_SAT=1` (over-exposed variant of
+//! the split: 1–6 % of each scene above the white level, see [`overexpose`]), `BLIND_SAT=2`
+//! (small light sources far above white, see [`light_sources`]), `BLIND_PROFILES=1` (with `size`: print the
 //! gradient autocorrelation profiles to stderr), `BLIND_DUMP=DIR` (write the sharp,
 //! blurred and restored PNGs of each case), `BLIND_TRACE=1` (also print, per pyramid level, the
 //! error ratio of that level's kernel resampled to full scale and its extent, support and RMS
@@ -50,8 +53,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use caliper_core::deconv::{
-    BlindParams, Plane, Psf, TvParams, blind_deconv, error_ratio_aligned, estimate_blur_extent,
-    estimate_kernel_trace, gradient_autocorrelation, tv_deconv,
+    BlindParams, DEFAULT_SATURATION, Plane, Psf, TvParams, blind_deconv, error_ratio_aligned,
+    estimate_blur_extent, estimate_kernel_trace, gradient_autocorrelation, psnr, tv_deconv,
 };
 use caliper_core::io::{ImageLimits, decode_gray8};
 use caliper_core::progress::NoProgress;
@@ -231,6 +234,55 @@ fn crop(src: &(usize, usize, Vec<f32>), rng: &mut Rng) -> Vec<f64> {
     best.1
 }
 
+/// Over-exposure (`BLIND_SAT=1`): the scene is scaled so that a random 1–6 % of its pixels
+/// exceed the white level, and their excess is amplified 2–10×, as highlights and light
+/// sources are in real shaken photos; the
+/// sharp reference and the blurred photo are both clipped there (the camera clips before the
+/// photo is stored). Drawn from its own generator so that crops, kernels and noise stay those of
+/// the plain split.
+fn overexpose(sq: &mut [f64], seed: u64) {
+    let mut rng = Rng::new(seed ^ 0x5a7u64);
+    let share = rng.range(0.01, 0.06);
+    let mut sorted = sq.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let q = sorted[((1.0 - share) * (sorted.len() - 1) as f64) as usize].max(1e-3);
+    // Highlights are brighter than the diffuse scene by more than the image shows.
+    let gain = rng.range(2.0, 10.0);
+    for v in sq.iter_mut() {
+        *v /= q;
+        if *v > 1.0 {
+            *v = 1.0 + gain * (*v - 1.0);
+        }
+    }
+}
+
+/// Light sources (`BLIND_SAT=2`): 3–10 small discs (radius 0.5–2.5 px) 3–30× brighter than
+/// white, the streaks of a shaken night photo; from their own generator as [`overexpose`].
+fn light_sources(sq: &mut [f64], seed: u64) {
+    let mut rng = Rng::new(seed ^ 0x11e);
+    let big = SIDE + 2 * CONTEXT;
+    let n = 3 + (rng.uniform() * 8.0) as usize;
+    for _ in 0..n {
+        let (cx, cy) = (rng.range(0.0, big as f64), rng.range(0.0, big as f64));
+        let r = rng.range(0.5, 2.5);
+        let v = rng.range(3.0, 30.0);
+        let reach = r.ceil() as isize + 1;
+        for dy in -reach..=reach {
+            for dx in -reach..=reach {
+                let (x, y) = (cx as isize + dx, cy as isize + dy);
+                if x < 0 || y < 0 || x >= big as isize || y >= big as isize {
+                    continue;
+                }
+                let d = (x as f64 + 0.5 - cx).hypot(y as f64 + 0.5 - cy);
+                // Anti-aliased edge: full inside r − 0.5, none beyond r + 0.5.
+                let cover = (r + 0.5 - d).clamp(0.0, 1.0);
+                let p = &mut sq[y as usize * big + x as usize];
+                *p += cover * (v - *p).max(0.0);
+            }
+        }
+    }
+}
+
 struct Case {
     name: String,
     sharp: Plane,
@@ -250,7 +302,7 @@ fn make_case(name: String, sq: &[f64], psf: Psf, rng: &mut Rng) -> Case {
     let mut blurred = Vec::with_capacity(SIDE * SIDE);
     for y in CONTEXT..CONTEXT + SIDE {
         for x in CONTEXT..CONTEXT + SIDE {
-            sharp.push(((sq[y * big + x] * 255.0).round() / 255.0) as f32);
+            sharp.push(((sq[y * big + x].min(1.0) * 255.0).round() / 255.0) as f32);
             let mut acc = 0.0;
             for &(kx, ky, k) in &taps {
                 acc += k * sq[(y + cy - ky) * big + x + cx - kx];
@@ -318,6 +370,7 @@ fn sources(root: &Path, split: Split) -> Vec<(String, PathBuf)> {
 
 fn cases(root: &Path, split: Split) -> Vec<Case> {
     let mut out = Vec::new();
+    let saturate = std::env::var("BLIND_SAT").ok();
     let base = match split {
         Split::Tune => 1u64,
         Split::Eval => 1_000_001,
@@ -336,7 +389,12 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
             } else {
                 ("3d", shake_3d(&mut rng, extent))
             };
-            let sq = crop(&src, &mut rng);
+            let mut sq = crop(&src, &mut rng);
+            match saturate.as_deref() {
+                Some("1") => overexpose(&mut sq, seed),
+                Some("2") => light_sources(&mut sq, seed),
+                _ => {}
+            }
             out.push(make_case(
                 format!("{name}/{gen_name}{seed}_{extent:.0}"),
                 &sq,
@@ -419,6 +477,7 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
     let mut per_source: Vec<(String, usize, usize)> = Vec::new();
     // Cases at ratio <= 3 and all cases, by true kernel side <= SIZE_SPLIT px and beyond.
     let mut by_size = [(0usize, 0usize); 2];
+    let mut psnrs: Vec<(f64, f64)> = Vec::new();
     for case in cases(&root, split) {
         if only.is_some_and(|o| !case.name.contains(o)) {
             continue;
@@ -431,22 +490,38 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
             // Experiment: window from the true kernel extent (upper bound for size estimation).
             params.kernel_size = Some(((f * case.psf.width as f64).round() as usize) | 1);
         }
+        if std::env::var("BLIND_NOSAT").is_ok() {
+            params.final_tv.saturation = None;
+        }
         let t = Instant::now();
         let out = blind_deconv(&case.blurred, &params, &NoProgress).expect("blind");
         let dt = t.elapsed().as_secs_f64();
-        let truth =
-            tv_deconv(&case.blurred, &case.psf, &TvParams::default(), &NoProgress).expect("tv");
+        let truth = tv_deconv(&case.blurred, &case.psf, &params.final_tv, &NoProgress).expect("tv");
         let r =
             error_ratio_aligned(&case.sharp, &out.image, &truth, BORDER, MAX_SHIFT).expect("ratio");
+        // Absolute quality beside the ratio: PSNR (15 px border) of the true-kernel restoration
+        // and, through the ratio of SSDs, of the aligned estimate.
+        let inner = |p: &Plane| {
+            let mut v = Vec::new();
+            for y in BORDER..p.height - BORDER {
+                v.extend_from_slice(&p.data[y * p.width + BORDER..(y + 1) * p.width - BORDER]);
+            }
+            Plane::new(p.width - 2 * BORDER, p.height - 2 * BORDER, v).expect("plane")
+        };
+        let p_truth = psnr(&inner(&case.sharp), &inner(&truth), 1.0).expect("psnr");
+        let p_est = p_truth - 10.0 * r.log10();
         println!(
-            "{:<34} true {:>2} px  est {:>2} px  ratio {:>7.2}  {:.2} s{}",
+            "{:<34} true {:>2} px  est {:>2} px  ratio {:>7.2}  {:.2} s  psnr {:5.2} / {:5.2}{}",
             case.name,
             case.psf.width,
             out.psf.width,
             r,
             dt,
+            p_est,
+            p_truth,
             if r > 3.0 { "  FAIL" } else { "" }
         );
+        psnrs.push((p_est, p_truth));
         if let Ok(dir) = std::env::var("BLIND_DUMP") {
             let stem = case.name.replace('/', "_");
             for (tag, p) in [
@@ -495,6 +570,14 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         .map(|(n, ok, all)| format!("{n} {ok}/{all}"))
         .collect();
     println!("per source (<=3): {}", line.join(", "));
+    if !psnrs.is_empty() {
+        let n = psnrs.len() as f64;
+        println!(
+            "mean PSNR (dB): estimated kernel {:.2}, true kernel {:.2}",
+            psnrs.iter().map(|p| p.0).sum::<f64>() / n,
+            psnrs.iter().map(|p| p.1).sum::<f64>() / n
+        );
+    }
     println!(
         "by kernel side (<=3): <= {SIZE_SPLIT} px {}/{}, > {SIZE_SPLIT} px {}/{}",
         by_size[0].0, by_size[0].1, by_size[1].0, by_size[1].1
@@ -615,7 +698,7 @@ fn starts(split: Split) {
         let truth =
             tv_deconv(&case.blurred, &case.psf, &TvParams::default(), &NoProgress).expect("tv");
         let lam = caliper_core::deconv::auto_tv_lambda(&case.blurred);
-        let est = estimate_blur_extent(&case.blurred, &NoProgress)
+        let est = estimate_blur_extent(&case.blurred, Some(DEFAULT_SATURATION as f32), &NoProgress)
             .expect("size")
             .unwrap_or(0.0);
         for ks in [None, Some(21), Some(31), Some(45)] {
@@ -655,10 +738,17 @@ fn sizes(split: Split) {
             }
         }
         let truth = (x1 + 1 - x0).max(y1 + 1 - y0) as f64;
-        let est = estimate_blur_extent(&case.blurred, &NoProgress).expect("size");
+        let est = estimate_blur_extent(&case.blurred, Some(DEFAULT_SATURATION as f32), &NoProgress)
+            .expect("size");
         let e = est.unwrap_or(0.0);
         if std::env::var("BLIND_PROFILES").is_ok() {
-            let pr = gradient_autocorrelation(&case.blurred, 80, &NoProgress).expect("r");
+            let pr = gradient_autocorrelation(
+                &case.blurred,
+                80,
+                Some(DEFAULT_SATURATION as f32),
+                &NoProgress,
+            )
+            .expect("r");
             for r in &pr {
                 let v: Vec<String> = r.iter().map(|v| format!("{v:.4}")).collect();
                 eprintln!("P {} {truth} {}", case.name, v.join(" "));

@@ -149,6 +149,11 @@ async fn deblur_refuses_inconsistent_params_before_queueing() {
             json!({"method": "tv", "psf": {"width": 1, "height": 1, "data": [1]}, "gyro_grid": [4, 4]}),
             Some("params.gyro_grid"),
         ),
+        // A saturation level outside [0.5, 1].
+        (
+            json!({"method": "blind", "saturation": 1.5}),
+            Some("params.saturation"),
+        ),
         // Unknown method.
         (json!({"method": "magic"}), None),
     ];
@@ -194,6 +199,30 @@ fn offline_deblur_writes_the_image_under_its_name_and_the_kernel() {
     assert_eq!((back.width(), back.height()), (96, 72));
     assert!(out.join("blurred.kernel.png").exists());
     assert!(out.join("blurred.kernel.json").exists());
+    // The clipped-highlight level: `off` is accepted, a level outside [0.5, 1] is named.
+    for (level, ok) in [("off", true), ("0.98", true), ("1.7", false)] {
+        let o = std::process::Command::new(caliper_bin())
+            .args([
+                "run",
+                "deblur",
+                "--method",
+                "tv",
+                "--saturation",
+                level,
+                "--psf",
+            ])
+            .arg(&kernel)
+            .arg("--out")
+            .arg(&out)
+            .arg(&input)
+            .output()
+            .expect("run caliper");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.success(), ok, "{level}: {err}");
+        if !ok {
+            assert!(err.contains("saturation"), "{err}");
+        }
+    }
     // A kernel file that is not a kernel: clear error, non-zero exit.
     std::fs::write(&kernel, "1 2\n3\n").expect("write");
     let o = std::process::Command::new(caliper_bin())

@@ -52,6 +52,10 @@ pub struct DeblurParams {
     pub nsr: Option<f64>,
     /// TV weight for `tv`, `blind` and `gyro` (default: from the estimated noise).
     pub tv_lambda: Option<f64>,
+    /// For `tv`, `blind` and `gyro`: pixels at or above this value (0.5–1 of full scale;
+    /// default 0.99) are taken as clipped by the sensor and only bound the restoration from
+    /// below, and `blind` leaves them out of the kernel estimate; `null` treats them as linear.
+    pub saturation: Option<f64>,
     /// Kernel side for `blind` / `blind_rl` (odd; default for `blind`: 1.4× the blur extent
     /// estimated from the image, 15 px to a third of the shorter side; for `blind_rl`, and for
     /// `blind` when no extent is found: 31 or a third of the shorter side).
@@ -78,6 +82,7 @@ impl Default for DeblurParams {
             iterations: None,
             nsr: None,
             tv_lambda: None,
+            saturation: Some(super::tv::DEFAULT_SATURATION),
             kernel_size: None,
             gyro: None,
             gyro_grid: None,
@@ -190,7 +195,7 @@ impl DeblurParams {
             return Err(CoreError::param("nsr", "must be finite and ≥ 0"));
         }
         self.tv_params().validate().map_err(|e| match e {
-            CoreError::InvalidParam { message, .. } if self.tv_lambda.is_some() => {
+            CoreError::InvalidParam { field, message } if field == "lambda" => {
                 CoreError::param("tv_lambda", message)
             }
             other => other,
@@ -207,6 +212,7 @@ impl DeblurParams {
                 DeblurMethod::Tv | DeblurMethod::Gyro => self.iterations.unwrap_or(d.iterations),
                 _ => d.iterations,
             },
+            saturation: self.saturation,
         }
     }
 
@@ -216,6 +222,7 @@ impl DeblurParams {
             final_tv: TvParams {
                 lambda: self.tv_lambda,
                 iterations: self.iterations.unwrap_or(TvParams::default().iterations),
+                saturation: self.saturation,
             },
             ..BlindParams::default()
         }

@@ -57,7 +57,7 @@ pub use metrics::{error_ratio, error_ratio_aligned, psnr, ssim};
 pub use psf::{MAX_PSF_SIZE, Psf};
 pub use resample::resize;
 pub use rl::{MAX_RL_ITERATIONS, richardson_lucy};
-pub use tv::{MAX_TV_ITERATIONS, TvParams, auto_tv_lambda, tv_deconv};
+pub use tv::{DEFAULT_SATURATION, MAX_TV_ITERATIONS, TvParams, auto_tv_lambda, tv_deconv};
 pub use varying::deconv_varying;
 pub use wiener::{estimate_noise_sigma, wiener};
 

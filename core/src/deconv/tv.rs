@@ -31,13 +31,22 @@ pub struct TvParams {
     /// ADMM iterations (default 80; each costs four FFTs of the padded image; 40 is within
     /// 0.05 dB).
     pub iterations: usize,
+    /// Pixels at or above this value are taken as clipped by the sensor (default 0.99, i.e.
+    /// 8-bit 253 and up): there the restoration only has to reblur to *at least* the stored
+    /// value, so over-exposed highlights neither ring nor drag their surroundings down.
+    /// `null`: every pixel is a linear measurement.
+    pub saturation: Option<f64>,
 }
+
+/// Default of [`TvParams::saturation`]: JPEG leaves clipped highlights at 253–255.
+pub const DEFAULT_SATURATION: f64 = 0.99;
 
 impl Default for TvParams {
     fn default() -> Self {
         Self {
             lambda: None,
             iterations: 80,
+            saturation: Some(DEFAULT_SATURATION),
         }
     }
 }
@@ -54,6 +63,14 @@ impl TvParams {
             return Err(CoreError::param(
                 "iterations",
                 format!("must be between 1 and {MAX_TV_ITERATIONS}"),
+            ));
+        }
+        if let Some(v) = self.saturation
+            && !(0.5..=1.0).contains(&v)
+        {
+            return Err(CoreError::param(
+                "saturation",
+                "must be within [0.5, 1] (or null to switch it off)",
             ));
         }
         Ok(())
@@ -76,6 +93,12 @@ pub fn auto_tv_lambda(img: &Plane) -> f64 {
 /// "Deconvolving images with unknown boundaries using the alternating direction method of
 /// multipliers", IEEE TIP 22(8), 2013 (the same idea as Bertero & Boccacci 2005 for RL). No pixel
 /// outside the photo is assumed to be anything, so nothing rings at the borders.
+///
+/// Clipped pixels (at or above [`TvParams::saturation`]) enter as one-sided terms
+/// `½ max(0, y − (K ⊛ x))²`: the sensor stored the white level because the light was at least
+/// that, so a prediction above it is no error. This is the clipped forward model of O. Whyte,
+/// J. Sivic, A. Zisserman, "Deblurring shaken and partially saturated images", IJCV 110, 2014,
+/// in the ADMM's `u` step, where it is a per-pixel projection.
 ///
 /// The splitting `u = K ⊛ x`, `w = ∇x` follows the half-quadratic / variable-splitting scheme of
 /// Y. Wang, J. Yang, W. Yin, Y. Zhang, "A new alternating minimization algorithm for total
@@ -110,8 +133,7 @@ pub fn tv_deconv(
         &fft,
         &kspec,
         direct,
-        &y,
-        &mask,
+        (&y, &mask, params.saturation.map(|v| v as f32)),
         x0,
         lambda,
         params.iterations,
@@ -128,8 +150,8 @@ const RHO_DATA: f32 = 0.1;
 /// 10–200 gave the same fixed point, 100 converged fastest.
 const BETA_PER_LAMBDA: f32 = 100.0;
 
-/// The ADMM loop of [`tv_deconv`] on a padded domain (`y` data, `mask` 1 where observed, `x`
-/// the start), shared with the blind solver's final step.
+/// The ADMM loop of [`tv_deconv`] on a padded domain (`y` data, `mask` 1 where observed, data
+/// at or above `saturation` one-sided; `x` the start).
 ///
 /// `direct`, the same kernel as `kspec` as taps, when convolving directly is cheaper
 /// ([`SparseKernel::worth_it`]): then `Kᵀ(u − a)` and `Kx` are formed in the pixel domain and,
@@ -140,8 +162,7 @@ pub(super) fn admm_tv(
     fft: &Fft2,
     kspec: &[C32],
     direct: Option<&SparseKernel>,
-    y: &[f32],
-    mask: &[f32],
+    (y, mask, saturation): (&[f32], &[f32], Option<f32>),
     mut x: Vec<f32>,
     lambda: f32,
     iterations: usize,
@@ -179,14 +200,21 @@ pub(super) fn admm_tv(
     let thr = lambda / beta;
     for it in 0..iterations {
         progress.check()?;
-        // u step: per-pixel weighted mean of the data (where observed) and the prediction;
-        // `ua = u − a` for the x step in the same pass.
+        // u step: per-pixel weighted mean of the data (where observed) and the prediction, or
+        // the prediction itself where a clipped pixel's bound holds; `ua = u − a` for the x
+        // step in the same pass.
+        let sat = saturation.unwrap_or(f32::INFINITY);
         u.par_iter_mut()
             .zip(ua.par_iter_mut())
             .zip(kx.par_iter().zip(a.par_iter()))
             .zip(y.par_iter().zip(mask.par_iter()))
             .for_each(|(((u, ua), (&kx, &a)), (&y, &m))| {
-                *u = (m * y + rho * (kx + a)) / (m + rho);
+                let v = kx + a;
+                *u = if y >= sat && v >= y {
+                    v
+                } else {
+                    (m * y + rho * v) / (m + rho)
+                };
                 *ua = *u - a;
             });
         // w step: isotropic shrinkage of ∇x + b; `d = w − b` for the x step in the same pass.

@@ -302,6 +302,10 @@ pub struct DeblurArgs {
     /// Kernel side for the blind methods (odd).
     #[arg(long)]
     pub kernel_size: Option<usize>,
+    /// Level (0.5–1) at and above which pixels count as clipped highlights, or `off`
+    /// [default: 0.99].
+    #[arg(long, value_parser = parse_saturation)]
+    pub saturation: Option<Value>,
     /// Gyro trace for `--method gyro`: JSON with `samples` [{t, w: [x, y, z]}],
     /// `exposure_start_s`, `exposure_s` and (unless `--camera` gives them) fx, fy, cx, cy; or an
     /// IMU log (`.csv` / `.csv.gz`, the `imu-noise` formats: ns timestamps, gyro in rad/s),
@@ -345,6 +349,20 @@ fn parse_frames(s: &str) -> Result<caliper_core::deconv::FramePick, String> {
             .map(FramePick::Times),
         _ => Err(bad()),
     }
+}
+
+/// `off` → `null` (every pixel linear), else the level as a number (range-checked with the
+/// other parameters).
+fn parse_saturation(s: &str) -> Result<Value, String> {
+    if s.eq_ignore_ascii_case("off") {
+        return Ok(Value::Null);
+    }
+    s.trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|v| v.is_finite())
+        .map(|v| json!(v))
+        .ok_or_else(|| format!("{s:?}: expected a level such as 0.99, or off"))
 }
 
 /// `NXxNY` → `[nx, ny]`.
@@ -395,6 +413,7 @@ fn params_from_flags(a: &DeblurArgs) -> Result<Value, RunError> {
         ("nsr", a.nsr.map(|v| json!(v))),
         ("tv_lambda", a.tv_lambda.map(|v| json!(v))),
         ("kernel_size", a.kernel_size.map(|v| json!(v))),
+        ("saturation", a.saturation.clone()),
         ("gyro_grid", a.gyro_grid.map(|v| json!(v))),
     ] {
         if let Some(v) = v {
