@@ -93,7 +93,8 @@ pub struct BlindParams {
     pub lambda_grad: f64,
     /// Weight of `‖k‖²` in the kernel step (default 2, on un-normalised gradient sums).
     pub kernel_reg: f64,
-    /// Final non-blind TV solve.
+    /// Final non-blind TV solve. Its `saturation` level also marks the clipped pixels that the
+    /// kernel estimate and the blur-extent estimate leave out.
     pub final_tv: TvParams,
 }
 
@@ -220,6 +221,8 @@ const LEVEL_RATIO: f64 = std::f64::consts::FRAC_1_SQRT_2;
 ///   steps, `M` keeping the photo's own pixels; then entries below 10 % of the maximum are
 ///   dropped ([`COARSE_KERNEL_THRESHOLD`]), so are 8-connected pieces holding less than 10 % of
 ///   the mass, and the rest is normalised; λ ← max(λ/1.1, 10⁻⁴);
+/// * clipped pixels (at or above `final_tv.saturation`) and their neighbours are left out of
+///   the kernel step ([`clipped_map`]) and of the window estimate;
 /// * the kernel is re-centred on its centroid after every level, so that it stays inside its
 ///   window and the deblurred image is not shifted;
 /// * the full-resolution level is estimated with a weaker image prior ([`FINEST_LAMBDA_FACTOR`]
