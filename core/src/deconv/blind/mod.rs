@@ -323,8 +323,7 @@ fn estimate_kernel_traced(
             )
         };
         kernel = estimate_level(
-            &level_img,
-            level_clipped.as_deref(),
+            (&level_img, level_clipped.as_deref()),
             kernel,
             size,
             params,
@@ -443,10 +442,10 @@ fn entry_damping(kernel: &[f64], ks: usize, gamma: f64, finest: bool) -> Vec<f64
 /// Damping factor off the current support at the finest level ([`entry_damping`]).
 const OFF_SUPPORT_FACTOR: f64 = 5.0;
 
-/// One pyramid level of [`estimate_kernel`]; `finest` selects the full-resolution settings.
+/// One pyramid level of [`estimate_kernel`] on `y` (with its clipped-pixel map, [`clipped_map`]
+/// resampled to the level); `finest` selects the full-resolution settings.
 fn estimate_level(
-    y: &Plane,
-    clipped: Option<&[f64]>,
+    (y, clipped): (&Plane, Option<&[f64]>),
     mut kernel: Vec<f64>,
     ks: usize,
     params: &BlindParams,
