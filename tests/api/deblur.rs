@@ -183,14 +183,19 @@ fn offline_deblur_writes_the_image_under_its_name_and_the_kernel() {
     let row = ["4.000000000000000083e-02"; 5].join(" ");
     std::fs::write(&kernel, format!("{row}\n").repeat(5)).expect("write");
     let out = dir.path().join("out");
-    let o = std::process::Command::new(caliper_bin())
-        .args(["run", "deblur", "--method", "wiener", "--psf"])
-        .arg(&kernel)
-        .arg("--out")
-        .arg(&out)
-        .arg(&input)
-        .output()
-        .expect("run caliper");
+    // `caliper run deblur FLAGS --psf kernel.txt [--out out/] blurred.png`.
+    let run = |flags: &[&str], with_out: bool| {
+        let mut c = std::process::Command::new(caliper_bin());
+        c.args(["run", "deblur"])
+            .args(flags)
+            .arg("--psf")
+            .arg(&kernel);
+        if with_out {
+            c.arg("--out").arg(&out);
+        }
+        c.arg(&input).output().expect("run caliper")
+    };
+    let o = run(&["--method", "wiener"], true);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let doc: Value = serde_json::from_slice(&o.stdout).expect("document");
     assert_eq!(doc["schema"], "caliper.deblur/v1");
@@ -201,22 +206,7 @@ fn offline_deblur_writes_the_image_under_its_name_and_the_kernel() {
     assert!(out.join("blurred.kernel.json").exists());
     // The clipped-highlight level: `off` is accepted, a level outside [0.5, 1] is named.
     for (level, ok) in [("off", true), ("0.98", true), ("1.7", false)] {
-        let o = std::process::Command::new(caliper_bin())
-            .args([
-                "run",
-                "deblur",
-                "--method",
-                "tv",
-                "--saturation",
-                level,
-                "--psf",
-            ])
-            .arg(&kernel)
-            .arg("--out")
-            .arg(&out)
-            .arg(&input)
-            .output()
-            .expect("run caliper");
+        let o = run(&["--method", "tv", "--saturation", level], true);
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.success(), ok, "{level}: {err}");
         if !ok {
@@ -225,12 +215,7 @@ fn offline_deblur_writes_the_image_under_its_name_and_the_kernel() {
     }
     // A kernel file that is not a kernel: clear error, non-zero exit.
     std::fs::write(&kernel, "1 2\n3\n").expect("write");
-    let o = std::process::Command::new(caliper_bin())
-        .args(["run", "deblur", "--method", "wiener", "--psf"])
-        .arg(&kernel)
-        .arg(&input)
-        .output()
-        .expect("run caliper");
+    let o = run(&["--method", "wiener"], false);
     assert!(!o.status.success());
     assert!(
         String::from_utf8_lossy(&o.stderr).contains("kernel.txt"),

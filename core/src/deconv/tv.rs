@@ -198,12 +198,12 @@ pub(super) fn admm_tv(
         Vec::new()
     };
     let thr = lambda / beta;
+    let sat = saturation.unwrap_or(f32::INFINITY);
     for it in 0..iterations {
         progress.check()?;
         // u step: per-pixel weighted mean of the data (where observed) and the prediction, or
         // the prediction itself where a clipped pixel's bound holds; `ua = u − a` for the x
         // step in the same pass.
-        let sat = saturation.unwrap_or(f32::INFINITY);
         u.par_iter_mut()
             .zip(ua.par_iter_mut())
             .zip(kx.par_iter().zip(a.par_iter()))

@@ -298,13 +298,14 @@ fn estimate_kernel_traced(
             clean_kernel(&mut kernel, size, 0.0);
             k_size = size;
         }
-        let f = if li + 1 == levels {
+        let finest = li + 1 == levels;
+        let f = if finest {
             1.0
         } else {
             LEVEL_RATIO.powi((levels - 1 - li) as i32)
         };
-        let (level_img, level_clipped) = if li + 1 == levels {
-            (img.clone(), clipped.clone())
+        let (level_img, coarse_clipped) = if finest {
+            (img.clone(), None)
         } else {
             let nw = ((img.width as f64 * f).round() as usize).max(2 * size + 1);
             let nh = ((img.height as f64 * f).round() as usize).max(2 * size + 1);
@@ -323,13 +324,20 @@ fn estimate_kernel_traced(
             )
         };
         kernel = estimate_level(
-            (&level_img, level_clipped.as_deref()),
+            (
+                &level_img,
+                if finest {
+                    clipped.as_deref()
+                } else {
+                    coarse_clipped.as_deref()
+                },
+            ),
             kernel,
             size,
             params,
             progress,
             (li * params.iterations_per_level, total),
-            li + 1 == levels,
+            finest,
         )?;
         recentre(&mut kernel, size);
         if let Some(t) = trace.as_deref_mut() {
