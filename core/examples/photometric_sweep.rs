@@ -71,20 +71,26 @@ fn emor_draw(rng: &mut Rng) -> ResponseModel {
 
 fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamera, AeVideo) {
     let eval = set == "eval";
-    let seed = if eval { 1000 + i as u64 } else { i as u64 };
-    let mut rng = Rng::new(
-        seed.wrapping_mul(7919)
-            .wrapping_add(if eval { 17 } else { 3 }),
-    );
+    let saturated = set == "saturated";
+    let seed = match (eval, saturated) {
+        (true, _) => 1000 + i as u64,
+        (_, true) => 2000 + i as u64,
+        _ => i as u64,
+    };
+    let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(match (eval, saturated) {
+        (true, _) => 17,
+        (_, true) => 29,
+        _ => 3,
+    }));
     // Fixed responses first (the cases), then alternate EMoR draws and gamma curves.
-    let response = match (eval, i) {
-        (false, 0) => ResponseModel::Emor { c: [0.0; 4] },
-        (false, 1) => ResponseModel::Emor {
+    let response = match (set, i) {
+        ("tuning", 0) => ResponseModel::Emor { c: [0.0; 4] },
+        ("tuning", 1) => ResponseModel::Emor {
             c: [-6.0, 0.5, 0.3, 0.0],
         },
-        (false, 2) => ResponseModel::Gamma { gamma: 2.4 },
-        (true, 0) => ResponseModel::Gamma { gamma: 2.6 },
-        (true, 1) => ResponseModel::Gamma { gamma: 1.0 },
+        ("tuning", 2) => ResponseModel::Gamma { gamma: 2.4 },
+        ("eval", 0) => ResponseModel::Gamma { gamma: 2.6 },
+        ("eval", 1) => ResponseModel::Gamma { gamma: 1.0 },
         _ if i % 3 == 2 => ResponseModel::Gamma {
             gamma: 1.0 + 1.6 * rng.uniform(),
         },
@@ -113,6 +119,35 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         gain: 0.3 + 0.5 * rng.uniform(),
         flicker: 0.02 + 0.06 * rng.uniform(),
     };
+    if saturated {
+        // The tuning split's scene and vignettes with a third to half of the pixels clipped,
+        // as on the held-out split's scripted programs: an auto-exposure that aims high, or
+        // a manual exposure drifting at random (a program the held-out split does not use).
+        video.program = if i.is_multiple_of(2) {
+            ExposureProgram::AutoExposure {
+                target: 0.62 + 0.2 * rng.uniform(),
+                gain: 0.3 + 0.5 * rng.uniform(),
+                flicker: 0.02 + 0.06 * rng.uniform(),
+            }
+        } else {
+            ExposureProgram::Walk {
+                stops: 0.8 + 0.8 * rng.uniform(),
+                step: if i % 4 == 1 {
+                    0.05 + 0.1 * rng.uniform()
+                } else {
+                    0.2 + 0.2 * rng.uniform()
+                },
+            }
+        };
+        if i % 4 >= 2 {
+            video.scene = SceneForm::Blocks;
+        }
+        if i % 3 == 0 {
+            video.vignette = VignetteForm::Gaussian {
+                corner: 0.35 + 0.4 * rng.uniform(),
+            };
+        }
+    }
     if eval {
         video.program = match i % 3 {
             0 => ExposureProgram::Sweep {
@@ -150,6 +185,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         ExposureProgram::AutoExposure { .. } => "ae",
         ExposureProgram::Sweep { .. } => "sweep",
         ExposureProgram::Steps { .. } => "steps",
+        ExposureProgram::Walk { .. } => "walk",
     };
     let name = format!(
         "{set}#{i} {rname} {pname} {:?} {}",
@@ -157,6 +193,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         match video.vignette {
             VignetteForm::Polynomial => "poly",
             VignetteForm::Cos4 { .. } => "cos4",
+            VignetteForm::Gaussian { .. } => "gauss",
         }
     );
     (name, cam, video)

@@ -242,6 +242,14 @@ pub enum ExposureProgram {
         /// Frames per step.
         hold: usize,
     },
+    /// Scripted: `log₂ e` takes a Gaussian step of `step` stops per frame, reflected at
+    /// `±stops` from the start (a manual exposure drifting without regard to the scene).
+    Walk {
+        /// Half range in stops.
+        stops: f64,
+        /// Standard deviation of a frame's step, in stops.
+        step: f64,
+    },
 }
 
 /// The scene's radiance pattern.
@@ -252,6 +260,9 @@ pub enum SceneForm {
     /// Soft-edged Voronoi patches of random radiance: flat regions with corners, unlike the
     /// smooth waves.
     Patches,
+    /// A Mondrian of axis-aligned blocks (bands of random height offsets, cells of random
+    /// width per band): flat regions with straight edges and T-junctions.
+    Blocks,
 }
 
 /// The true vignetting law.
@@ -264,6 +275,12 @@ pub enum VignetteForm {
     Cos4 {
         /// Corner half-angle in degrees.
         corner_deg: f64,
+    },
+    /// Gaussian fall-off `V = corner^{r²}` (`r` = 1 at the corner): another law that is not
+    /// the model's polynomial.
+    Gaussian {
+        /// Attenuation at the corner, in (0, 1].
+        corner: f64,
     },
 }
 
@@ -341,6 +358,38 @@ fn patches(seed: u64, u: f64, v: f64) -> f64 {
     // Blend across a ~3 unit wide edge.
     let s = ((best[1].0 - best[0].0) / 3.0).tanh();
     best[0].1 * (0.5 + 0.5 * s) + best[1].1 * (0.5 - 0.5 * s)
+}
+
+/// Mondrian blocks: bands 30 units high, each with its own offset and cell width (20–50
+/// units), one radiance per cell, edges blended over ~1.5 units.
+fn blocks(seed: u64, u: f64, v: f64) -> f64 {
+    const BAND: f64 = 30.0;
+    const EDGE: f64 = 1.5;
+    let hash = |i: i64, j: i64, k: u64| {
+        let mut r = Rng::new(
+            seed ^ (i as u64).wrapping_mul(0x9E37_79B9) ^ (j as u64).wrapping_mul(0x85EB_CA6B) ^ k,
+        );
+        r.uniform()
+    };
+    // Weights of the previous and next cell at distance `a` from the start and `b` from the
+    // end of the current one.
+    let blend = |a: f64, b: f64| (0.5 - 0.5 * (a / EDGE).tanh(), 0.5 - 0.5 * (b / EDGE).tanh());
+    let row = |j: i64| {
+        let off = 60.0 * hash(j, 0, 11);
+        let w = 20.0 + 30.0 * hash(j, 0, 12);
+        let x = (u + off) / w;
+        let i = x.floor();
+        let f = (x - i) * w;
+        let i = i as i64;
+        let (wl, wr) = blend(f, w - f);
+        hash(i, j, 13) * (1.0 - wl - wr) + hash(i - 1, j, 13) * wl + hash(i + 1, j, 13) * wr
+    };
+    let y = v / BAND;
+    let j = y.floor();
+    let f = (y - j) * BAND;
+    let j = j as i64;
+    let (wu, wd) = blend(f, BAND - f);
+    row(j) * (1.0 - wu - wd) + row(j - 1) * wu + row(j + 1) * wd
 }
 
 /// A camera gliding over a plane (translation ~2·speed px/frame, slow rotation and zoom)
@@ -427,6 +476,7 @@ fn render_planes(
             let t = vm.r2(x, y).sqrt() * corner_deg.to_radians().tan();
             t.atan().cos().powi(4)
         }
+        VignetteForm::Gaussian { corner } => corner.powf(vm.r2(x, y)),
     };
     let vignette_map: Vec<f32> = (0..cam.height)
         .flat_map(|y| (0..cam.width).map(move |x| (x as f64, y as f64)))
@@ -435,6 +485,7 @@ fn render_planes(
     let radiance = |u: f64, v: f64| match video.scene {
         SceneForm::Waves => tex.radiance(u, v),
         SceneForm::Patches => video.mid * (video.stops * (patches(cam.seed, u, v) - 0.5)).exp2(),
+        SceneForm::Blocks => video.mid * (video.stops * (blocks(cam.seed, u, v) - 0.5)).exp2(),
     };
     let mut e = E_START;
     let mut out = AeSequence {
@@ -496,6 +547,16 @@ fn render_planes(
                 } else {
                     e
                 }
+            }
+            ExposureProgram::Walk { stops, step } => {
+                let mut l = (e / E_START).log2() + step * prog_rng.normal();
+                if l > *stops {
+                    l = 2.0 * stops - l;
+                }
+                if l < -stops {
+                    l = -2.0 * stops - l;
+                }
+                E_START * l.clamp(-stops, *stops).exp2()
             }
         };
     }
