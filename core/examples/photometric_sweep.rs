@@ -10,10 +10,14 @@
 //! * `eval`: seeds from 1000, other response draws, scripted sweep/step exposure programs
 //!   mixed with other controller settings, the Voronoi-patch scene and a cos⁴ vignette (a law
 //!   the polynomial model only approximates) on half the cases.
+//! * `saturated`: seeds from 2000, a second tuning set for clipping: auto-exposure aiming high
+//!   or a manual exposure drifting at random (slowly or fast, up to ±1.6 stops), a Mondrian
+//!   scene and a Gaussian vignetting law on some cases; 16–62 % of the pixels clipped. Its
+//!   program, scene and law are not those of `eval`, which stays held out.
 //!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \
-//!     [tuning|eval|shared] [cases] [frames] [width] [height]
+//!     [tuning|saturated|eval|shared] [cases] [frames] [width] [height]
 //! ```
 //!
 //! The exposure error is scored like `score_ref.json`'s `ratio_rmse_pct_gauge_aligned`: RMS

@@ -452,3 +452,85 @@ fn joint_refinement_from_ideal_tracks() {
         assert!(verr < 0.01, "vignette RMSE {verr}");
     }
 }
+
+/// The new generator forms of the saturated tuning split: the walk stays within its range and
+/// moves, the Gaussian law is `corner` at the corner and 1 at the centre, the Mondrian spans
+/// the scene's contrast with flat blocks.
+#[test]
+fn walk_gaussian_and_blocks_generators() {
+    use super::synth::{AeVideo, ExposureProgram, SceneForm, VignetteForm, render_ae_video};
+    let cam = SynthCamera::reference(64, 48, 3);
+    let video = AeVideo {
+        program: ExposureProgram::Walk {
+            stops: 1.0,
+            step: 0.3,
+        },
+        scene: SceneForm::Blocks,
+        vignette: VignetteForm::Gaussian { corner: 0.4 },
+        ..AeVideo::default()
+    };
+    let seq = render_ae_video(&cam, 60, &video);
+    let logs: Vec<f64> = seq.exposures.iter().map(|e| e.log2()).collect();
+    assert!(logs.iter().all(|l| l.abs() <= 1.0 + 1e-9), "{logs:?}");
+    let (lo, hi) = logs
+        .iter()
+        .fold((f64::MAX, f64::MIN), |a, &l| (a.0.min(l), a.1.max(l)));
+    assert!(hi - lo > 0.5, "the walk barely moved: {lo}..{hi}");
+    let v = &seq.vignette_map;
+    let centre = v[24 * 64 + 32];
+    assert!((centre - 1.0).abs() < 1e-3, "centre {centre}");
+    assert!((v[0] - 0.4).abs() < 0.02, "corner {}", v[0]);
+    // Flat blocks: most horizontal neighbours in a frame are (nearly) equal, a few differ a lot.
+    let f = &seq.frames[0];
+    let steps: Vec<i32> = f
+        .data
+        .chunks(64)
+        .flat_map(|row| row.windows(2).map(|p| (i32::from(p[1]) - i32::from(p[0])).abs()))
+        .collect();
+    let flat = steps.iter().filter(|&&d| d <= 3).count() as f64 / steps.len() as f64;
+    assert!(flat > 0.7, "flat fraction {flat}");
+    assert!(steps.iter().any(|&d| d > 20), "no block edge");
+}
+
+/// Online calibration off the default generators: a third or more of the pixels clipped by a
+/// drifting manual exposure, over a Mondrian scene under a Gaussian vignetting law that the
+/// polynomial only approximates (the form of the sweep's `saturated` split, other seed).
+#[test]
+fn online_calibration_on_saturated_drifting_exposure() {
+    use super::synth::{AeVideo, ExposureProgram, SceneForm, VignetteForm, render_ae_video};
+    let cam = SynthCamera::reference(160, 120, 23);
+    let video = AeVideo {
+        program: ExposureProgram::Walk {
+            stops: 1.2,
+            step: 0.15,
+        },
+        scene: SceneForm::Blocks,
+        vignette: VignetteForm::Gaussian { corner: 0.5 },
+        mid: 0.08,
+        stops: 8.0,
+        ..AeVideo::default()
+    };
+    let seq = render_ae_video(&cam, 80, &video);
+    let clipped = seq
+        .frames
+        .iter()
+        .map(|f| f.data.iter().filter(|&&v| v >= f.max_level - 2).count())
+        .sum::<usize>() as f64
+        / seq.frames.iter().map(|f| f.data.len()).sum::<usize>() as f64;
+    assert!(clipped > 0.25, "only {clipped} clipped: not the saturated case");
+    let p = OnlineParams {
+        max_features: 150,
+        ..OnlineParams::default()
+    };
+    let r = photometric_online(&seq.frames, &p, &NoProgress).unwrap();
+    let fit = InverseResponse::new(r.model.inverse_256.clone()).unwrap();
+    let (alpha, err) = gamma_align(&fit, &cam.response.inverse(256));
+    let vig = r.model.vignette.as_ref().unwrap();
+    let verr = metrics::vignette_rmse(&vig.map(), &seq.vignette_map, alpha);
+    let eerr = exposure_error_pct(&r.exposure_ratios, &seq.exposures, alpha);
+    eprintln!("saturated walk: clipped {clipped:.2} alpha {alpha:.3} resp {err:.4} vig {verr:.4} exp {eerr:.2}%");
+    // The bounds of `online_calibration_recovers_model` (same size and length).
+    assert!(err < 0.02, "response RMSE {err}");
+    assert!(verr < 0.03, "vignette RMSE {verr}");
+    assert!(eerr < 6.0, "exposure error {eerr} %");
+}
