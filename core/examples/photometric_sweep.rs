@@ -12,7 +12,7 @@
 //!   the polynomial model only approximates) on half the cases.
 //! * `saturated`: seeds from 2000, a second tuning set for clipping: auto-exposure aiming high
 //!   or a manual exposure drifting at random (slowly or fast, up to ±1.6 stops), a Mondrian
-//!   scene and a Gaussian vignetting law on some cases; 16–62 % of the pixels clipped. Its
+//!   scene and a Gaussian vignetting law on some cases; 26–61 % of the pixels clipped. Its
 //!   program, scene and law are not those of `eval`, which stays held out.
 //!
 //! ```text
