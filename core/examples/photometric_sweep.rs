@@ -81,11 +81,14 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         (_, true) => 2000 + i as u64,
         _ => i as u64,
     };
-    let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(match (eval, saturated) {
-        (true, _) => 17,
-        (_, true) => 29,
-        _ => 3,
-    }));
+    let mut rng = Rng::new(
+        seed.wrapping_mul(7919)
+            .wrapping_add(match (eval, saturated) {
+                (true, _) => 17,
+                (_, true) => 29,
+                _ => 3,
+            }),
+    );
     // Fixed responses first (the cases), then alternate EMoR draws and gamma curves.
     let response = match (set, i) {
         ("tuning", 0) => ResponseModel::Emor { c: [0.0; 4] },

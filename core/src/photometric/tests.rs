@@ -485,7 +485,10 @@ fn walk_gaussian_and_blocks_generators() {
     let steps: Vec<i32> = f
         .data
         .chunks(64)
-        .flat_map(|row| row.windows(2).map(|p| (i32::from(p[1]) - i32::from(p[0])).abs()))
+        .flat_map(|row| {
+            row.windows(2)
+                .map(|p| (i32::from(p[1]) - i32::from(p[0])).abs())
+        })
         .collect();
     let flat = steps.iter().filter(|&&d| d <= 3).count() as f64 / steps.len() as f64;
     assert!(flat > 0.7, "flat fraction {flat}");
@@ -517,7 +520,10 @@ fn online_calibration_on_saturated_drifting_exposure() {
         .map(|f| f.data.iter().filter(|&&v| v >= f.max_level - 2).count())
         .sum::<usize>() as f64
         / seq.frames.iter().map(|f| f.data.len()).sum::<usize>() as f64;
-    assert!(clipped > 0.25, "only {clipped} clipped: not the saturated case");
+    assert!(
+        clipped > 0.25,
+        "only {clipped} clipped: not the saturated case"
+    );
     let p = OnlineParams {
         max_features: 150,
         ..OnlineParams::default()
@@ -528,7 +534,9 @@ fn online_calibration_on_saturated_drifting_exposure() {
     let vig = r.model.vignette.as_ref().unwrap();
     let verr = metrics::vignette_rmse(&vig.map(), &seq.vignette_map, alpha);
     let eerr = exposure_error_pct(&r.exposure_ratios, &seq.exposures, alpha);
-    eprintln!("saturated walk: clipped {clipped:.2} alpha {alpha:.3} resp {err:.4} vig {verr:.4} exp {eerr:.2}%");
+    eprintln!(
+        "saturated walk: clipped {clipped:.2} alpha {alpha:.3} resp {err:.4} vig {verr:.4} exp {eerr:.2}%"
+    );
     // The bounds of `online_calibration_recovers_model` (same size and length).
     assert!(err < 0.02, "response RMSE {err}");
     assert!(verr < 0.03, "vignette RMSE {verr}");
