@@ -149,7 +149,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         if i % 4 >= 2 {
             video.scene = SceneForm::Blocks;
         }
-        if i % 3 == 0 {
+        if i.is_multiple_of(3) {
             video.vignette = VignetteForm::Gaussian {
                 corner: 0.35 + 0.4 * rng.uniform(),
             };
