@@ -39,7 +39,8 @@ use caliper_core::photometric::metrics::{
     exposure_error_common_pct, exposure_error_pct, gamma_align, vignette_rmse,
 };
 use caliper_core::photometric::synth::{
-    AeVideo, ExposureProgram, Rng, SceneForm, SynthCamera, VignetteForm, render_ae_video,
+    AeVideo, ExposureProgram, Rng, SceneForm, SynthCamera, VignetteForm, clipped_fraction,
+    render_ae_video,
 };
 use caliper_core::photometric::{
     InverseResponse, OnlineParams, PhotoImage, ResponseModel, photometric_online,
@@ -291,11 +292,7 @@ fn score(
             let (lo, hi) = truth_e
                 .iter()
                 .fold((f64::MAX, 0.0f64), |a, &e| (a.0.min(e), a.1.max(e)));
-            let sat = frames
-                .iter()
-                .map(|f| f.data.iter().filter(|&&v| v >= f.max_level - 2).count())
-                .sum::<usize>() as f64
-                / frames.iter().map(|f| f.data.len()).sum::<usize>().max(1) as f64;
+            let sat = clipped_fraction(frames);
             println!(
                 "{name:70} resp {resp:.4} vig {vig:.4} exp {exp:5.2}% (vs frame 0 {exp0:.2}%) α {alpha:.3} {secs:.2}s cpu {cpu:.2}s it {} rms {:.2} f(.5) {:.3} e {lo:.2}..{hi:.2} sat {:.1}%",
                 r.diagnostics.iterations,

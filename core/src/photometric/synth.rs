@@ -360,6 +360,16 @@ fn patches(seed: u64, u: f64, v: f64) -> f64 {
     best[0].1 * (0.5 + 0.5 * s) + best[1].1 * (0.5 - 0.5 * s)
 }
 
+/// Fraction of the pixels of `frames` within two levels of full scale (clipped): how
+/// saturated a rendered video is.
+pub fn clipped_fraction(frames: &[PhotoImage]) -> f64 {
+    let clipped: usize = frames
+        .iter()
+        .map(|f| f.data.iter().filter(|&&v| v >= f.max_level - 2).count())
+        .sum();
+    clipped as f64 / frames.iter().map(|f| f.data.len()).sum::<usize>().max(1) as f64
+}
+
 /// Mondrian blocks: bands 30 units high, each with its own offset and cell width (20–50
 /// units), one radiance per cell, edges blended over ~1.5 units.
 fn blocks(seed: u64, u: f64, v: f64) -> f64 {

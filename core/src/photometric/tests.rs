@@ -500,7 +500,9 @@ fn walk_gaussian_and_blocks_generators() {
 /// polynomial only approximates (the form of the sweep's `saturated` split, other seed).
 #[test]
 fn online_calibration_on_saturated_drifting_exposure() {
-    use super::synth::{AeVideo, ExposureProgram, SceneForm, VignetteForm, render_ae_video};
+    use super::synth::{
+        AeVideo, ExposureProgram, SceneForm, VignetteForm, clipped_fraction, render_ae_video,
+    };
     let cam = SynthCamera::reference(160, 120, 23);
     let video = AeVideo {
         program: ExposureProgram::Walk {
@@ -514,12 +516,7 @@ fn online_calibration_on_saturated_drifting_exposure() {
         ..AeVideo::default()
     };
     let seq = render_ae_video(&cam, 80, &video);
-    let clipped = seq
-        .frames
-        .iter()
-        .map(|f| f.data.iter().filter(|&&v| v >= f.max_level - 2).count())
-        .sum::<usize>() as f64
-        / seq.frames.iter().map(|f| f.data.len()).sum::<usize>() as f64;
+    let clipped = clipped_fraction(&seq.frames);
     assert!(
         clipped > 0.25,
         "only {clipped} clipped: not the saturated case"

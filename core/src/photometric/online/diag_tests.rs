@@ -56,7 +56,7 @@ use crate::photometric::metrics::{
 };
 use crate::photometric::response::interp_table;
 use crate::photometric::synth::{
-    AeVideo, ExposureProgram, Rng, SynthCamera, Texture, render_ae_video,
+    AeVideo, ExposureProgram, Rng, SynthCamera, Texture, clipped_fraction, render_ae_video,
 };
 use crate::photometric::{ResponseModel, VignetteModel};
 
@@ -331,12 +331,7 @@ fn run(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3]) {
         .exposures
         .iter()
         .fold((9.0f64, 0.0f64), |a, &e| (a.0.min(e), a.1.max(e)));
-    let sat = seq
-        .frames
-        .iter()
-        .map(|f| f.data.iter().filter(|&&v| v >= f.max_level - 2).count())
-        .sum::<usize>() as f64
-        / seq.frames.iter().map(|f| f.data.len()).sum::<usize>() as f64;
+    let sat = clipped_fraction(&seq.frames);
     eprintln!(
         "{label}: truth f(.5) {:.3}, exposures {lo:.3}..{hi:.3}, {:.1} % clipped",
         cam.response.forward(0.5),
