@@ -14,10 +14,13 @@
 //!   or a manual exposure drifting at random (slowly or fast, up to ±1.6 stops), a Mondrian
 //!   scene and a Gaussian vignetting law on some cases; 26–61 % of the pixels clipped. Its
 //!   program, scene and law are not those of `eval`, which stays held out.
+//! * `scripted`: seeds from 3000, a third tuning set with `eval`'s scripted sweep/step
+//!   programs (the ones behind its misses) on the wave or Mondrian scene and polynomial or
+//!   Gaussian vignettes; `eval` stays held out by seed, response draw, scene and law.
 //!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \
-//!     [tuning|saturated|eval|shared] [cases] [frames] [width] [height]
+//!     [tuning|saturated|scripted|eval|shared] [cases] [frames] [width] [height]
 //! ```
 //!
 //! The exposure error is scored like `score_ref.json`'s `ratio_rmse_pct_gauge_aligned`: RMS
@@ -26,7 +29,8 @@
 //!
 //! `SWEEP_PARAMS='{"gamma_gauge": 0.5}'` (any `OnlineParams` JSON) runs the old fixed gauge
 //! `f(0.5) = 0.5` for comparison. `SWEEP_FRAMES=1` prints the first frames' exposure errors
-//! against the best common scale (`SWEEP_ALL=1`: also every 10th frame). `shared` runs the
+//! against the best common scale (`SWEEP_ALL=1`: also every 10th frame); `SWEEP_DEBUG=1` prints
+//! each case's camera and video settings (to rebuild it in a diagnostic). `shared` runs the
 //! shared `ae_seq_seed0` (from `CALIPER_PHOTO_DATA`, default `../shared/data/photometric`)
 //! instead.
 
@@ -77,19 +81,14 @@ fn emor_draw(rng: &mut Rng) -> ResponseModel {
 fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamera, AeVideo) {
     let eval = set == "eval";
     let saturated = set == "saturated";
-    let seed = match (eval, saturated) {
-        (true, _) => 1000 + i as u64,
-        (_, true) => 2000 + i as u64,
-        _ => i as u64,
+    let scripted = set == "scripted";
+    let (seed, offset) = match set {
+        "eval" => (1000 + i as u64, 17),
+        "saturated" => (2000 + i as u64, 29),
+        "scripted" => (3000 + i as u64, 41),
+        _ => (i as u64, 3),
     };
-    let mut rng = Rng::new(
-        seed.wrapping_mul(7919)
-            .wrapping_add(match (eval, saturated) {
-                (true, _) => 17,
-                (_, true) => 29,
-                _ => 3,
-            }),
-    );
+    let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));
     // Fixed responses first (the issue's cases), then alternate EMoR draws and gamma curves.
     let response = match (set, i) {
         ("tuning", 0) => ResponseModel::Emor { c: [0.0; 4] },
@@ -145,6 +144,32 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
                 } else {
                     0.2 + 0.2 * rng.uniform()
                 },
+            }
+        };
+        if i % 4 >= 2 {
+            video.scene = SceneForm::Blocks;
+        }
+        if i.is_multiple_of(3) {
+            video.vignette = VignetteForm::Gaussian {
+                corner: 0.35 + 0.4 * rng.uniform(),
+            };
+        }
+    }
+    if scripted {
+        // The held-out split's scripted program forms (a sinusoidal sweep or held random
+        // steps around the start exposure, ~half the pixels clipped) on the tuning scenes and
+        // on the scene and vignetting law of `saturated`, never on `eval`'s Voronoi patches or
+        // cos⁴ law: the one tuning set where the programs behind `eval`'s misses occur.
+        video.program = if i.is_multiple_of(2) {
+            ExposureProgram::Sweep {
+                stops: 0.5 + 1.0 * rng.uniform(),
+                period: 40.0 + 80.0 * rng.uniform(),
+                flicker: 0.03,
+            }
+        } else {
+            ExposureProgram::Steps {
+                stops: 0.5 + 1.0 * rng.uniform(),
+                hold: 5 + (rng.uniform() * 20.0) as usize,
             }
         };
         if i % 4 >= 2 {
@@ -411,6 +436,9 @@ fn main() {
         } else {
             video
         };
+        if std::env::var_os("SWEEP_DEBUG").is_some() {
+            eprintln!("{name}\n  {cam:?}\n  {video:?}");
+        }
         let seq = render_ae_video(&cam, frames, &video);
         rows.push(score(
             name,

@@ -3,7 +3,8 @@
 //! `cargo test -p caliper-core --release --lib online::diag_tests -- --ignored --nocapture`
 //! (env: `DIAG_GT=1` also fits ground-truth observations, `DIAG_CENSOR=1` keeps their clipped
 //! samples as bounds, `DIAG_FREE=1` also fits the tracks with the gauge chosen from the data,
-//! `DIAG_SCRIPTED=1` makes `diag_saturated` run scripted step / sweep exposure programs).
+//! `DIAG_SCRIPTED=1` makes `diag_saturated` run scripted step / sweep exposure programs;
+//! `diag_truth_tests.rs` has the truth-start diagnostic).
 //!
 //! `diag_saturated` with `DIAG_SCRIPTED=1` (53–55 % of the pixels clipped, polynomial
 //! vignetting; response / vignetting / exposure error with the common scale, clipped samples

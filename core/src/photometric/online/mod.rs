@@ -28,6 +28,8 @@ mod channels;
 #[cfg(test)]
 mod diag_tests;
 #[cfg(test)]
+mod diag_truth_tests;
+#[cfg(test)]
 mod feature_tests;
 mod gauge;
 pub(crate) mod klt;

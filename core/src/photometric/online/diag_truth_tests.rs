@@ -1,0 +1,244 @@
+//! Diagnostic (ignored by default), `cargo test -p caliper-core --release --lib
+//! diag_truth_start -- --ignored --nocapture`.
+//!
+//! `diag_truth_start` (`DIAG_T6=1` adds tuning#6) tells a fit that stops in a wrong basin from
+//! samples that do not determine the answer: the joint refinement at the truth's gauge started
+//! from the truth (radiances from the samples) against the same refinement started from the
+//! default fit's result moved into that gauge, and the full-sample cost at gauges around the
+//! default's choice (robust cost; response / vignetting / exposure error, common scale):
+//! * the sweep's `scripted#7` (f(0.5) = 0.896, ±0.5-stop steps held 20 frames, the Mondrian,
+//!   14.5 % clipped): both starts end at the truth, cost 1.27064, 0.0006 / 0.0019 / 0.41 %.
+//!   On all samples the cost is 1.2710 at 0.900, 1.2756 at 0.880 and 1.2941 at 0.920, the
+//!   gauge the profile chose on its subsample (where the default fit ends at 0.015 / 0.019 /
+//!   2.1 %). The miss is the profile's choice, not the model or the samples.
+//! * tuning#6 (f(0.5) = 0.955, 0.2 % clipped, 21.9k samples): from the truth 1.5214 (0.0027 /
+//!   0.029 / 1.3 %; the vignetting drifts off the truth's), from the default's result 1.5223
+//!   (0.045 / 0.082 / 9.6 %), both at residual RMS 3.09 levels; at gauges 0.833–0.893 1.5250
+//!   → 1.5223. The samples of that sequence barely tell these answers apart (0.06 %): an
+//!   observation limit of a camera that is nearly white at half its irradiance range, not a
+//!   basin the fit misses.
+//!
+//! Tried after that, not kept (tuning splits of `examples/photometric_sweep.rs`):
+//! * polishing the chosen gauge on all samples (fits at ±0.02 warm-started from the full fit,
+//!   25 LM iterations, up to three moves and the parabola, up to f(0.5) = 0.975): scripted#7
+//!   → 0.0021 / 0.0046 / 0.64 % and tuning#6 → 0.018 / 0.027 / 7.2 %, but tuning#1 (f(0.5) =
+//!   0.97, within the targets before) → 0.0124 / 0.0049 / 2.14 % (the full-sample cost prefers
+//!   0.894 to the profile's 0.914 there), the tuning split 11 → 10 of 12, and the median time
+//!   per sequence 5.8 → 9.8 s (worst 12.1 s, over the 10 s budget); with 15 iterations per fit
+//!   scripted#7 did not move;
+//! * profiling on 3000 points instead of 1500: scripted#7 unchanged, tuning#1 → 0.0187,
+//!   tuning#6 → 0.067;
+//! * starting the radiances of the points outside the profile from the chosen model instead of
+//!   the mean-response start moved into the gauge: the final refinement of scripted#7 starts at
+//!   cost 1.283 instead of 53.9 and settles in ~6 iterations instead of creeping through all 40,
+//!   but the splits are unchanged (tuning 11/12, medians 0.0009 / 0.0018 / 0.42 %; saturated
+//!   12/12, 0.0008 / 0.0010 / 0.36 %; scripted#7 still 0.015).
+
+use super::{Observations, OnlineParams, fit, observe};
+use crate::photometric::joint::{JointConfig, JointState, refine, regauge};
+use crate::photometric::metrics::{exposure_error_common_pct, gamma_align, vignette_rmse};
+use crate::photometric::synth::{
+    AeVideo, ExposureProgram, SceneForm, SynthCamera, clipped_fraction, render_ae_video,
+};
+use crate::photometric::{ResponseModel, VignetteModel};
+use crate::progress::NoProgress;
+
+/// Radiances that best explain the measured samples of each point under `state`'s response,
+/// vignetting and exposures (the mean log irradiance over its samples).
+fn radiances_for(seen: &Observations, state: &mut JointState) {
+    let inv = ResponseModel::Emor { c: state.c }.inverse(4096);
+    let mut acc = vec![(0.0f64, 0.0f64); seen.n_points as usize];
+    for o in seen.obs.iter().filter(|o| o.measured()) {
+        let v = 1.0
+            + state.v[0] * f64::from(o.r2)
+            + state.v[1] * f64::from(o.r2).powi(2)
+            + state.v[2] * f64::from(o.r2).powi(3);
+        let irr = inv.eval(f64::from(o.value)).max(1e-6);
+        let a = &mut acc[o.point as usize];
+        a.0 += irr.ln() - state.log_e[o.frame as usize] - v.max(1e-3).ln();
+        a.1 += 1.0;
+    }
+    state.log_l = acc
+        .iter()
+        .map(|a| if a.1 > 0.0 { a.0 / a.1 } else { 0.0 })
+        .collect();
+}
+
+/// Whether a failing case is a wrong basin or an observation problem: the joint refinement at
+/// the truth's gauge started from the truth (response, vignetting, exposures; radiances from
+/// the samples) against the same refinement started from the default fit's result. A lower
+/// cost from the truth means the default fit stops in a wrong basin; a lower cost at a wrong
+/// answer means the samples themselves favour it.
+fn truth_start(label: &str, cam: &SynthCamera, video: &AeVideo, nf: usize) {
+    let (w, h) = (cam.width, cam.height);
+    let seq = render_ae_video(cam, nf, video);
+    let m = cam.response.forward(0.5);
+    let ResponseModel::Emor { c: true_c } = cam.response else {
+        eprintln!("{label}: truth start needs an EMoR response");
+        return;
+    };
+    let seen = observe(&seq.frames, &OnlineParams::default(), w, h, &NoProgress).unwrap();
+    let r = fit(
+        nf,
+        w,
+        h,
+        seen.clone(),
+        &OnlineParams::default(),
+        &[],
+        &NoProgress,
+    )
+    .unwrap();
+    let cfg = JointConfig {
+        fit_response: true,
+        fit_vignette: true,
+        fit_exposures: true,
+        gamma_gauge: Some(m),
+        huber: OnlineParams::default().huber_levels / 255.0,
+        max_iterations: 100,
+        label: "diag",
+    };
+    let e0 = seq.exposures[0];
+    let truth_vig = cam.vignette_model().map();
+    let report = |name: &str, mut s: JointState, gauge: f64| {
+        radiances_for(&seen, &mut s);
+        let cfg = JointConfig {
+            gamma_gauge: Some(gauge),
+            ..cfg.clone()
+        };
+        let rep = refine(&seen.obs, &cfg, &mut s, &NoProgress).unwrap();
+        let fitinv = ResponseModel::Emor { c: s.c }.inverse(256);
+        let (alpha, resp) = gamma_align(&fitinv, &cam.response.inverse(256));
+        let vm = VignetteModel::centered(w, h, s.v).map();
+        let verr = vignette_rmse(&vm, &truth_vig, alpha);
+        let ex: Vec<f64> = s.log_e.iter().map(|l| l.exp()).collect();
+        let ecom = exposure_error_common_pct(&ex, &seq.exposures, alpha);
+        eprintln!(
+            "{label} {name:10} m {gauge:.3} cost {:.6e} rms {:.3} lv it {} resp {resp:.4} vig {verr:.4} exp {ecom:.2}% alpha {alpha:.3} c {:?} v {:?}",
+            rep.cost,
+            rep.rms * 255.0,
+            rep.iterations,
+            s.c,
+            s.v
+        );
+    };
+    eprintln!(
+        "{label}: truth f(.5) {m:.3}, {:.1} % clipped, {} obs, default fit resp c {:?}",
+        100.0 * clipped_fraction(&seq.frames),
+        seen.obs.len(),
+        r.model.response
+    );
+    report(
+        "truth",
+        JointState {
+            c: true_c,
+            v: cam.vignette,
+            log_e: seq.exposures.iter().map(|e| (e / e0).ln()).collect(),
+            log_l: Vec::new(),
+        },
+        m,
+    );
+    if let ResponseModel::Emor { c } = r.model.response {
+        let s = JointState {
+            c,
+            v: r.model.vignette.as_ref().map_or([0.0; 3], |v| v.v),
+            log_e: r.exposure_ratios.iter().map(|e| e.ln()).collect(),
+            log_l: vec![0.0; seen.n_points as usize],
+        };
+        let chosen = r.model.response.forward(0.5);
+        for g in [chosen - 0.04, chosen - 0.02, chosen, chosen + 0.02, m] {
+            if !(0.05..0.99).contains(&g) {
+                continue;
+            }
+            let mut s = s.clone();
+            regauge(&mut s, g);
+            report("default", s, g);
+        }
+    }
+}
+
+/// The sweep's tuning#6 (f(0.5) = 0.95), which fails: truth start against the default fit.
+/// `SWEEP_DEBUG=1` on the sweep prints the settings below.
+#[test]
+#[ignore]
+fn diag_truth_start() {
+    if std::env::var_os("DIAG_T6").is_some() {
+        let (cam, video) = tuning6();
+        truth_start("tuning#6", &cam, &video, 200);
+    }
+    let (cam, video) = scripted7();
+    truth_start("scripted#7", &cam, &video, 200);
+}
+
+/// The sweep's tuning#6 at 320×240 (printed by the sweep with `SWEEP_DEBUG=1`).
+fn tuning6() -> (SynthCamera, AeVideo) {
+    let cam = SynthCamera {
+        width: 320,
+        height: 240,
+        response: ResponseModel::Emor {
+            c: [
+                -6.603167792999848,
+                -1.7904388989964364,
+                0.14608954715918204,
+                -0.13118363638689295,
+            ],
+        },
+        vignette: [
+            -0.49586462096087847,
+            -0.0191719753863131,
+            -0.0446456660937703,
+        ],
+        shot: 2e-4,
+        read: 1.5e-3,
+        sixteen_bit: false,
+        seed: 6,
+    };
+    let video = AeVideo {
+        program: ExposureProgram::AutoExposure {
+            target: 0.32066853716940813,
+            gain: 0.5909327678020637,
+            flicker: 0.03630152763076468,
+        },
+        mid: 0.05944485938421068,
+        stops: 5.068038509755389,
+        speed: 0.7380018883873001,
+        ..AeVideo::default()
+    };
+    (cam, video)
+}
+
+/// The sweep's scripted#7 (f(0.5) = 0.90, ±0.5-stop steps held 20 frames, the Mondrian).
+fn scripted7() -> (SynthCamera, AeVideo) {
+    let cam = SynthCamera {
+        width: 320,
+        height: 240,
+        response: ResponseModel::Emor {
+            c: [
+                -1.9279727095604478,
+                1.8571685799486695,
+                -0.2234741327494059,
+                -0.770088607950615,
+            ],
+        },
+        vignette: [
+            -0.43261656183464037,
+            0.0006170588710067593,
+            -0.017651946535472196,
+        ],
+        shot: 2e-4,
+        read: 1.5e-3,
+        sixteen_bit: false,
+        seed: 3007,
+    };
+    let video = AeVideo {
+        program: ExposureProgram::Steps {
+            stops: 0.5049042475579468,
+            hold: 20,
+        },
+        scene: SceneForm::Blocks,
+        mid: 0.03926670568388148,
+        stops: 5.458966343144198,
+        speed: 0.8365282902503406,
+        ..AeVideo::default()
+    };
+    (cam, video)
+}
