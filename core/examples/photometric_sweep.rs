@@ -157,7 +157,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
     }
     if scripted {
         // The held-out split's scripted program forms (a sinusoidal sweep or held random
-        // steps around the start exposure, ~half the pixels clipped) on the tuning scenes and
+        // steps around the start exposure; 13–62 % of the pixels clipped) on the tuning scenes and
         // on the scene and vignetting law of `saturated`, never on `eval`'s Voronoi patches or
         // cos⁴ law: the one tuning set where the programs behind `eval`'s misses occur.
         video.program = if i.is_multiple_of(2) {

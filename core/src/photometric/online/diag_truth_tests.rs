@@ -10,7 +10,10 @@
 //!   14.5 % clipped): both starts end at the truth, cost 1.27064, 0.0006 / 0.0019 / 0.41 %.
 //!   On all samples the cost is 1.2710 at 0.900, 1.2756 at 0.880 and 1.2941 at 0.920, the
 //!   gauge the profile chose on its subsample (where the default fit ends at 0.015 / 0.019 /
-//!   2.1 %). The miss is the profile's choice, not the model or the samples.
+//!   2.1 %). The miss is the profile's choice, not the model or the samples: 0.920 is the
+//!   grid's top value, and the local steps skipped any bracket reaching 0.95. With the
+//!   bracket pulled in instead (`gauge::local_bracket`) the fit chooses 0.898 and gives
+//!   0.0011 / 0.0035 / 0.54 %.
 //! * tuning#6 (f(0.5) = 0.955, 0.2 % clipped, 21.9k samples): from the truth 1.5214 (0.0027 /
 //!   0.029 / 1.3 %; the vignetting drifts off the truth's), from the default's result 1.5223
 //!   (0.045 / 0.082 / 9.6 %), both at residual RMS 3.09 levels; at gauges 0.833–0.893 1.5250
@@ -18,7 +21,7 @@
 //!   observation limit of a camera that is nearly white at half its irradiance range, not a
 //!   basin the fit misses.
 //!
-//! Tried after that, not kept (tuning splits of `examples/photometric_sweep.rs`):
+//! Tried before finding that, not kept (tuning splits of `examples/photometric_sweep.rs`):
 //! * polishing the chosen gauge on all samples (fits at ±0.02 warm-started from the full fit,
 //!   25 LM iterations, up to three moves and the parabola, up to f(0.5) = 0.975): scripted#7
 //!   → 0.0021 / 0.0046 / 0.64 % and tuning#6 → 0.018 / 0.027 / 7.2 %, but tuning#1 (f(0.5) =
