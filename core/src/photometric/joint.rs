@@ -168,7 +168,7 @@ impl Layout {
     }
 }
 
-fn vignette(v: &[f64; 3], r2: f64) -> f64 {
+pub(crate) fn vignette(v: &[f64; 3], r2: f64) -> f64 {
     (1.0 + r2 * (v[0] + r2 * (v[1] + r2 * v[2]))).max(1e-3)
 }
 
