@@ -17,10 +17,13 @@
 //! * `scripted`: seeds from 3000, a third tuning set with `eval`'s scripted sweep/step
 //!   programs (the ones behind its misses) on the wave or Mondrian scene and polynomial or
 //!   Gaussian vignettes; `eval` stays held out by seed, response draw, scene and law.
+//! * `lens`: seeds from 4000, a fourth tuning set for the vignetting model: the tuning
+//!   programs and scenes under mechanical vignetting (a plateau, then a smoothstep shoulder)
+//!   or a strong Gaussian law, neither of them `eval`'s cos⁴.
 //!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \
-//!     [tuning|saturated|scripted|eval|shared] [cases] [frames] [width] [height]
+//!     [tuning|saturated|scripted|lens|eval|shared] [cases] [frames] [width] [height]
 //! ```
 //!
 //! The exposure error is scored like `score_ref.json`'s `ratio_rmse_pct_gauge_aligned`: RMS
@@ -82,10 +85,12 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
     let eval = set == "eval";
     let saturated = set == "saturated";
     let scripted = set == "scripted";
+    let lens = set == "lens";
     let (seed, offset) = match set {
         "eval" => (1000 + i as u64, 17),
         "saturated" => (2000 + i as u64, 29),
         "scripted" => (3000 + i as u64, 41),
+        "lens" => (4000 + i as u64, 53),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));
@@ -181,6 +186,24 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
             };
         }
     }
+    if lens {
+        // Wide-angle and mechanically vignetted lenses on the tuning scenes and AE programs:
+        // a plateau with a steep shoulder (hood, filter ring) or a strong Gaussian fall-off,
+        // laws `eval` does not use.
+        if i % 4 >= 2 {
+            video.scene = SceneForm::Blocks;
+        }
+        video.vignette = if i % 3 == 2 {
+            VignetteForm::Gaussian {
+                corner: 0.15 + 0.15 * rng.uniform(),
+            }
+        } else {
+            VignetteForm::Mechanical {
+                start: 0.1 + 0.35 * rng.uniform(),
+                depth: 0.35 + 0.3 * rng.uniform(),
+            }
+        };
+    }
     if eval {
         video.program = match i % 3 {
             0 => ExposureProgram::Sweep {
@@ -227,6 +250,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
             VignetteForm::Polynomial => "poly",
             VignetteForm::Cos4 { .. } => "cos4",
             VignetteForm::Gaussian { .. } => "gauss",
+            VignetteForm::Mechanical { .. } => "mech",
         }
     );
     (name, cam, video)
@@ -324,6 +348,10 @@ fn score(
                 r.diagnostics.residual_rms_levels,
                 r.model.response.forward(0.5),
                 100.0 * sat
+            );
+            println!(
+                "    vignette: {} ({})",
+                r.vignette_choice.model, r.vignette_choice.reason
             );
             if std::env::var_os("SWEEP_STAGES").is_some()
                 && let Ok(s) = stages.0.lock()

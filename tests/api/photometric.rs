@@ -396,6 +396,17 @@ async fn photometric_online_fits_one_response_per_colour_channel() {
         doc["parameters"]["vignette_center"]["estimated"].is_boolean(),
         "{doc}"
     );
+    // The vignetting model kept by the default `auto`, and why.
+    let choice = &doc["parameters"]["vignette_choice"];
+    assert!(
+        matches!(choice["model"].as_str(), Some("polynomial" | "spline")),
+        "{doc}"
+    );
+    assert!(
+        choice["reason"]
+            .as_str()
+            .is_some_and(|r| r.starts_with("auto"))
+    );
     // Green is the main model; red is its own curve, close to the red truth in green's gauge.
     assert_eq!(
         channels[1]["inverse_256"],
@@ -431,6 +442,10 @@ async fn photometric_online_fits_one_response_per_colour_channel() {
         (
             json!({"vignette_center": "middle"}),
             "params.options.vignette_center",
+        ),
+        (
+            json!({"vignette_model": "cubic"}),
+            "params.options.vignette_model",
         ),
     ] {
         let r = s

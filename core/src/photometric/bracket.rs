@@ -161,6 +161,7 @@ pub fn photometric_response(
     let mut state = JointState {
         c: [0.0; EMOR_DIM],
         v: [0.0; 3],
+        spline: None,
         log_e,
         log_l,
     };

@@ -63,6 +63,7 @@ fn start(log_l: &[f64]) -> JointState {
     JointState {
         c: [0.0; 4],
         v: [0.0; 3],
+        spline: None,
         log_e: vec![0.0, (E1 * 0.8).ln()],
         log_l: log_l.iter().map(|l| l + 0.1).collect(),
     }

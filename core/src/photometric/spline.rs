@@ -75,6 +75,17 @@ impl RadialSpline {
     pub fn eval(&self, r: f64) -> f64 {
         eval_with(&self.knots, &self.values, r)
     }
+
+    /// The basis weights of the values at `r` into `out` (`V(r) = Σ w_j values[j]`; at most
+    /// four entries); `unit` is scratch of the values' length, all zero.
+    pub(crate) fn basis_into(&self, r: f64, unit: &mut [f64], out: &mut Vec<(usize, f64)>) {
+        if r >= self.knots[self.knots.len() - 1] {
+            out.clear();
+            out.push((self.knots.len() - 1, 1.0));
+            return;
+        }
+        basis(&self.knots, r, unit, out);
+    }
 }
 
 /// Tangent at knot `i` for values `c`.

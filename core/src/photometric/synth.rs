@@ -282,6 +282,15 @@ pub enum VignetteForm {
         /// Attenuation at the corner, in (0, 1].
         corner: f64,
     },
+    /// Mechanical vignetting (a hood, a filter ring or a lens too small for the sensor): flat
+    /// out to `r² = start`, then a smoothstep down to `1 − depth` at the corner. A plateau
+    /// with a steep shoulder, which the even polynomial follows worst of the three.
+    Mechanical {
+        /// `r²` where the fall-off begins, in [0, 1).
+        start: f64,
+        /// Loss at the corner, in [0, 1).
+        depth: f64,
+    },
 }
 
 /// Scene, exposure program and vignetting of an AE video.
@@ -487,6 +496,10 @@ fn render_planes(
             t.atan().cos().powi(4)
         }
         VignetteForm::Gaussian { corner } => corner.powf(vm.r2(x, y)),
+        VignetteForm::Mechanical { start, depth } => {
+            let t = ((vm.r2(x, y) - start) / (1.0 - start)).clamp(0.0, 1.0);
+            1.0 - depth * t * t * (3.0 - 2.0 * t)
+        }
     };
     let vignette_map: Vec<f32> = (0..cam.height)
         .flat_map(|y| (0..cam.width).map(move |x| (x as f64, y as f64)))

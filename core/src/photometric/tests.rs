@@ -421,6 +421,7 @@ fn joint_refinement_from_ideal_tracks() {
         let mut st = JointState {
             c: [0.0; 4],
             v: [0.0; 3],
+            spline: None,
             log_e: vec![0.0; 80],
             log_l: log_l.iter().map(|a| a.0 / a.1).collect(),
         };
@@ -538,4 +539,53 @@ fn online_calibration_on_saturated_drifting_exposure() {
     assert!(err < 0.02, "response RMSE {err}");
     assert!(verr < 0.03, "vignette RMSE {verr}");
     assert!(eerr < 6.0, "exposure error {eerr} %");
+}
+
+/// A mechanically vignetted lens (flat to r² = 0.3, then a smoothstep down to half at the
+/// corner): `auto` keeps the spline, which follows it where the polynomial cannot.
+#[test]
+fn online_calibration_follows_mechanical_vignetting() {
+    use super::synth::{AeVideo, VignetteForm, render_ae_video};
+    let (w, h) = (240, 180);
+    let cam = SynthCamera::reference(w, h, 31);
+    let video = AeVideo {
+        vignette: VignetteForm::Mechanical {
+            start: 0.3,
+            depth: 0.5,
+        },
+        mid: 0.06,
+        stops: 6.5,
+        speed: 1.0,
+        ..AeVideo::default()
+    };
+    let seq = render_ae_video(&cam, 120, &video);
+    // The generator: 1 on the plateau, 1 − depth at the corner.
+    let v = &seq.vignette_map;
+    assert!((v[h / 2 * w + w / 2] - 1.0).abs() < 1e-3);
+    assert!((v[0] - 0.5).abs() < 0.02, "corner {}", v[0]);
+    let run = |kind: VignetteKind| {
+        let p = OnlineParams {
+            max_features: 150,
+            vignette_model: kind,
+            ..OnlineParams::default()
+        };
+        let r = photometric_online(&seq.frames, &p, &NoProgress).unwrap();
+        let fit = InverseResponse::new(r.model.inverse_256.clone()).unwrap();
+        let (alpha, rerr) = gamma_align(&fit, &cam.response.inverse(256));
+        let vig = r.model.vignette.as_ref().unwrap();
+        let verr = metrics::vignette_rmse(&vig.map(), &seq.vignette_map, alpha);
+        let eerr = exposure_error_pct(&r.exposure_ratios, &seq.exposures, alpha);
+        eprintln!("{kind:?}: response {rerr:.4} exposure {eerr:.2} %");
+        (r.vignette_choice, vig.spline.is_some(), verr)
+    };
+    let (choice, has_spline, spline_err) = run(VignetteKind::Auto);
+    let (_, poly_has_spline, poly_err) = run(VignetteKind::Polynomial);
+    eprintln!("mechanical: {choice:?} spline {spline_err:.4} polynomial {poly_err:.4}");
+    assert_eq!(choice.model, "spline", "{}", choice.reason);
+    assert!(has_spline && !poly_has_spline);
+    assert!(spline_err < 0.01, "spline vignette RMSE {spline_err}");
+    assert!(
+        spline_err < 0.6 * poly_err,
+        "spline {spline_err} against polynomial {poly_err}"
+    );
 }

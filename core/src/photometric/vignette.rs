@@ -91,7 +91,7 @@ impl VignetteModel {
         Ok(())
     }
 
-    fn max_r2(&self) -> f64 {
+    pub(crate) fn max_r2(&self) -> f64 {
         let (w, h) = (self.width as f64, self.height as f64);
         [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h)]
             .iter()

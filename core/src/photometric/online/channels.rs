@@ -35,6 +35,7 @@ use serde::{Deserialize, Serialize};
 use super::super::emor::EMOR_DIM;
 use super::super::joint::{JointConfig, JointReport, JointState, Obs, refine};
 use super::super::response::ResponseModel;
+use super::super::spline::RadialSpline;
 use super::super::{PhotoImage, check_stack};
 use super::center::r2_at;
 use super::gauge::OtherChannel;
@@ -128,6 +129,11 @@ pub fn photometric_online_rgb(
     let mut result = fit(frames.len(), w, h, g, params, &others, progress)?;
     let log_e: Vec<f64> = result.exposure_ratios.iter().map(|e| e.ln()).collect();
     let v = result.model.vignette.as_ref().map_or([0.0; 3], |m| m.v);
+    let spline = result
+        .model
+        .vignette
+        .as_ref()
+        .and_then(|m| m.spline.clone());
     let green_c = match result.model.response {
         ResponseModel::Emor { c } => c,
         ResponseModel::Gamma { .. } => [0.0; EMOR_DIM],
@@ -139,7 +145,16 @@ pub fn photometric_online_rgb(
         for (o, &p) in seen.obs.iter_mut().zip(&seen.pos) {
             o.r2 = r2_at(p, center, rad);
         }
-        fit_fixed(name, &seen, &log_e, v, green_c, huber, params, progress)
+        fit_fixed(
+            name,
+            &seen,
+            &log_e,
+            (&v, spline.as_ref()),
+            green_c,
+            huber,
+            params,
+            progress,
+        )
     };
     let red = fit_other("r", r)?;
     let blue = fit_other("b", b)?;
@@ -261,7 +276,7 @@ fn fit_fixed(
     name: &str,
     seen: &Observations,
     log_e: &[f64],
-    v: [f64; 3],
+    v: (&[f64; 3], Option<&RadialSpline>),
     green: [f64; EMOR_DIM],
     huber: f64,
     params: &OnlineParams,
@@ -290,7 +305,7 @@ fn fit_fixed(
 }
 
 /// A channel's response and radiances fitted with the exposures `log_e` and the vignetting
-/// `v` held, from each response start in `starts`, keeping the lowest robust cost.
+/// `v` (the polynomial, or the spline when there is one) held, from each response start in `starts`, keeping the lowest robust cost.
 ///
 /// Started from the mean response and from green's response (channels of one camera are
 /// usually alike): with the exposures fixed the problem has no gauge freedom left, but LM from
@@ -301,7 +316,7 @@ pub(super) fn fit_with_shared(
     obs: &[Obs],
     n_points: usize,
     log_e: &[f64],
-    v: [f64; 3],
+    (v, spline): (&[f64; 3], Option<&RadialSpline>),
     starts: &[[f64; EMOR_DIM]],
     huber: f64,
     max_iterations: usize,
@@ -313,9 +328,15 @@ pub(super) fn fit_with_shared(
         // Radiances from the start response: `ln L = ln f₀⁻¹(O) − ln e − ln V`, per point.
         let g0 = ResponseModel::Emor { c: c0 }.inverse(4096);
         let mut acc = vec![(0.0f64, 0.0f64); n_points];
+        let held = JointState {
+            c: c0,
+            v: *v,
+            spline: spline.cloned(),
+            log_e: Vec::new(),
+            log_l: Vec::new(),
+        };
         for o in obs {
-            let r2 = f64::from(o.r2);
-            let vg = (1.0 + r2 * (v[0] + r2 * (v[1] + r2 * v[2]))).max(1e-3);
+            let vg = held.vig(f64::from(o.r2));
             let Some(a) = acc.get_mut(o.point as usize) else {
                 continue;
             };
@@ -323,10 +344,9 @@ pub(super) fn fit_with_shared(
             a.1 += 1.0;
         }
         let mut state = JointState {
-            c: c0,
-            v,
             log_e: log_e.to_vec(),
             log_l: acc.iter().map(|a| a.0 / a.1.max(1.0)).collect(),
+            ..held
         };
         let rep = refine(
             obs,

@@ -133,6 +133,7 @@ fn truth_start(label: &str, cam: &SynthCamera, video: &AeVideo, nf: usize) {
         JointState {
             c: true_c,
             v: cam.vignette,
+            spline: None,
             log_e: seq.exposures.iter().map(|e| (e / e0).ln()).collect(),
             log_l: Vec::new(),
         },
@@ -142,6 +143,7 @@ fn truth_start(label: &str, cam: &SynthCamera, video: &AeVideo, nf: usize) {
         let s = JointState {
             c,
             v: r.model.vignette.as_ref().map_or([0.0; 3], |v| v.v),
+            spline: None,
             log_e: r.exposure_ratios.iter().map(|e| e.ln()).collect(),
             log_l: Vec::new(),
         };

@@ -136,7 +136,7 @@ pub(super) fn choose_gauge(
                 o,
                 *n,
                 &st.log_e,
-                st.v,
+                (&st.v, st.spline.as_ref()),
                 &[[0.0; EMOR_DIM], st.c],
                 huber,
                 OTHER_ITERATIONS,

@@ -1,3 +1,7 @@
+//! Why one file of over 600 lines: the pipeline below (tracking, sampling, start, gauge,
+//! refinement, centre and vignetting model) is one sequence whose stages hand over state; the
+//! stages with their own logic live in the submodules.
+//!
 //! Online photometric calibration of an auto-exposure video (Bergmann, Wang & Cremers,
 //! "Online Photometric Calibration of Auto Exposure Video for Realtime Visual Odometry and
 //! SLAM", RA-L 2017), run as a batch over the given frames:
@@ -34,6 +38,7 @@ mod feature_tests;
 mod gauge;
 pub(crate) mod klt;
 mod similarity;
+mod vig_model;
 
 pub use center::{CenterMode, CenterReport};
 pub use channels::{ChannelResponse, Channels, photometric_online_rgb};
@@ -41,6 +46,7 @@ pub use channels::{ChannelResponse, Channels, photometric_online_rgb};
 use serde::{Deserialize, Serialize};
 
 use super::emor::EMOR_DIM;
+use super::flat::VignetteKind;
 use super::joint::{Censor, JointConfig, JointState, Obs, gauge_start, refine};
 use super::response::ResponseModel;
 use super::vignette::VignetteModel;
@@ -50,6 +56,7 @@ use crate::progress::Progress;
 use gauge::OtherChannel;
 use klt::{KltConfig, Pyramid, Track, min_eigen, patch, track_and_refine};
 use similarity::Similarity;
+pub use vig_model::VignetteChoice;
 
 /// Parameters of [`photometric_online`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -93,6 +100,10 @@ pub struct OnlineParams {
     /// uses the estimate. Experimental: on the synthetic tests the estimate can be biased by
     /// tens of pixels under mostly translational motion (see `center`).
     pub vignette_center: CenterMode,
+    /// `polynomial` (DSO's `1 + v1 r² + v2 r⁴ + v3 r⁶`), `spline` (a radial spline, for
+    /// wide-angle and mechanically vignetted lenses) or `auto` (both; the spline when it fits
+    /// clearly better, see `vignette_choice` in the result).
+    pub vignette_model: VignetteKind,
 }
 
 impl Default for OnlineParams {
@@ -112,6 +123,7 @@ impl Default for OnlineParams {
             max_points: 6000,
             channels: Channels::Luma,
             vignette_center: CenterMode::Fixed,
+            vignette_model: VignetteKind::Auto,
         }
     }
 }
@@ -177,6 +189,9 @@ pub struct OnlineResult {
     /// Whether the vignetting centre was estimated, where it is and how well it is known.
     #[serde(default)]
     pub vignette_center: CenterReport,
+    /// Which vignetting model was kept and why.
+    #[serde(default)]
+    pub vignette_choice: VignetteChoice,
     /// With `channels: rgb`: the response of each channel (R, G, B), in the gauge of the shared
     /// exposures and vignetting; `model.response` is then the green one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -493,6 +508,7 @@ pub(crate) fn fit(
     let mut state = JointState {
         c: [0.0; EMOR_DIM],
         v: [0.0; 3],
+        spline: None,
         log_e,
         log_l,
     };
@@ -571,13 +587,22 @@ pub(crate) fn fit(
     // A fisheye's tracks stay inside the image circle; the polynomial extrapolated to the dark
     // corners may turn negative there. Mask it from where it falls to 1 % (the mask radius is
     // in the model) instead of failing the job on an unusable `vignette.png`.
+    let mut model = VignetteModel::centered(w, h, state.v);
+    model.center = center.center;
+    let vignette_choice = vig_model::choose(
+        params.vignette_model,
+        &obs,
+        &joint,
+        (&mut state, &mut rep),
+        &model,
+        progress,
+    )?;
+    model.spline = state.spline.clone();
     let vignette = params.fit_vignette.then(|| {
-        let mut m = VignetteModel::centered(w, h, state.v);
-        m.center = center.center;
-        if m.validate().is_err() {
-            m.mask_below(0.01);
+        if model.validate().is_err() {
+            model.mask_below(0.01);
         }
-        m
+        model
     });
     Ok(OnlineResult {
         schema: PHOTOMETRIC_SCHEMA.to_string(),
@@ -595,6 +620,7 @@ pub(crate) fn fit(
             monotone,
         },
         vignette_center: center,
+        vignette_choice,
         channel_responses: None,
     })
 }

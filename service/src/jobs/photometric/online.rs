@@ -111,6 +111,7 @@ impl Kind for PhotometricOnline {
             "residual_rms_levels": r.diagnostics.residual_rms_levels,
             "converged": r.diagnostics.converged,
             "vignette_center_estimated": r.vignette_center.estimated,
+            "vignette_model": r.vignette_choice.model,
         });
         let mut artifacts = response_artifacts(&r.model)?;
         // One DSO pcalib per channel (DSO reads one response; pick the channel it images).
