@@ -53,7 +53,18 @@
 //! * no salient-edge selection at all (the kernel step fed the whole L0 latent's gradients;
 //!   the L0 prior already keeps only strong edges): 20 of 44 as the baseline of the same run
 //!   (natural photos 17 of 20, chessboards 3 of 24 as before), ≤ 2 on 12 against 14, median
-//!   3.57 against 3.79, worst 60.6 against 39.3, mean PSNR 21.48 against 21.60 dB.
+//!   3.57 against 3.79, worst 60.6 against 39.3, mean PSNR 21.48 against 21.60 dB;
+//! * the kernel step's data term weighted towards corners and junctions, `1 + α(1 − c)` with
+//!   `c` the coherence of the blurred gradients' structure tensor over a kernel-sized box (the
+//!   board's corners are the only places where it sees the kernel in 2-D, the opposite of
+//!   the usefulness map above): α = 1 18 of 44, α = 3 17 (chessboards 1 of 24);
+//! * a smoothness term `η·γ·‖∇k‖²` beside `γ‖k‖²` in the kernel step (against the scattered
+//!   ghost segments): η = 1 20 of 44 (median 3.58), η = 5 21 (chessboards 6 of 24 against 3,
+//!   but the natural photos 15 of 20 against 17 and ≤ 2 on 9 against 14, mean PSNR 21.82
+//!   against 21.60 dB), η = 20 11 (the path thickens), η = 5 at the coarse levels only 18.
+//!
+//! On the chessboards the window estimate reads the square period, not the blur: 37–55 px
+//! windows for 19–27 px kernels on most boards (the oracle window, above, did not help either).
 //!
 //! Most TUNE failures are on chessboards. There the failure is structural: the board is
 //! invariant under translation by its lattice vectors, so a part of the kernel moved by one
