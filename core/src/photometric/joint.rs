@@ -161,24 +161,23 @@ impl JointState {
 
 /// Weight of the spline's second-difference penalty, per unit of observation weight. Where the
 /// tracks never reach (the corners of a fisheye, the ring outside a small scene) it carries
-/// the curve on linearly; where they do it is negligible against the data (a kink of 0.05 costs
-/// as much as 0.2 % of one observation's squared residual at 2 levels of noise).
+/// the curve on linearly; where they do it is negligible against the data (a kink of 0.05
+/// adds 0.04 % to the data cost at 2 levels of noise).
 const SPLINE_SMOOTHING: f64 = 1e-5;
 
 /// Second differences of the spline's values (the smoothness penalty), each with its sparse
-/// gradient in the free values (index of value `j` is `j − 1`).
-fn spline_penalties(s: &RadialSpline) -> Vec<(f64, [(usize, f64); 3])> {
+/// gradient in the free values (value `j` is free parameter `j − 1`; value 0 is fixed at 1).
+fn spline_penalties(s: &RadialSpline) -> Vec<(f64, Vec<(usize, f64)>)> {
     let v = &s.values;
     (1..v.len().saturating_sub(1))
         .map(|j| {
             let d = v[j - 1] - 2.0 * v[j] + v[j + 1];
-            // ∂d/∂v_{j-1}, ∂d/∂v_j, ∂d/∂v_{j+1}; v_0 is fixed (weight 0 at a dummy index).
-            let g = [
-                (j.wrapping_sub(2), if j >= 2 { 1.0 } else { 0.0 }),
-                (j - 1, -2.0),
-                (j, 1.0),
-            ];
-            (d, g)
+            let grad = [(j - 1, 1.0), (j, -2.0), (j + 1, 1.0)]
+                .into_iter()
+                .filter(|&(i, _)| i > 0)
+                .map(|(i, w)| (i - 1, w))
+                .collect();
+            (d, grad)
         })
         .collect()
 }
@@ -363,9 +362,9 @@ pub(crate) fn refine(
         {
             let ws = SPLINE_SMOOTHING * wsum;
             for (d, grad) in spline_penalties(sp) {
-                for &(ia, ja) in grad.iter().filter(|(_, w)| *w != 0.0) {
+                for &(ia, ja) in &grad {
                     g[lay.nc + ia] -= ws * ja * d;
-                    for &(ib, jb) in grad.iter().filter(|(_, w)| *w != 0.0) {
+                    for &(ib, jb) in &grad {
                         h[(lay.nc + ia, lay.nc + ib)] += ws * ja * jb;
                     }
                 }
