@@ -247,7 +247,10 @@ fn c_penalties(cfg: &JointConfig, curve: &[f64]) -> Vec<(f64, [f64; EMOR_DIM])> 
     out
 }
 
-fn total_cost(obs: &[Obs], cfg: &JointConfig, s: &JointState, wpen: f64) -> f64 {
+/// The robust cost of `s`; `wsum` is the observations' total weight (the penalties scale
+/// with it).
+fn total_cost(obs: &[Obs], cfg: &JointConfig, s: &JointState, wsum: f64) -> f64 {
+    let wpen = penalty_weight(wsum);
     let curve = emor_basis().curve(&s.c);
     // Fixed chunks summed in order: the same result on any number of threads.
     let parts: Vec<f64> = obs
@@ -274,12 +277,17 @@ fn total_cost(obs: &[Obs], cfg: &JointConfig, s: &JointState, wpen: f64) -> f64 
     if cfg.fit_vignette
         && let Some(sp) = &s.spline
     {
-        let wsum: f64 = obs.iter().map(|o| f64::from(o.weight)).sum();
         for (d, _) in spline_penalties(sp) {
             cost += SPLINE_SMOOTHING * wsum * d * d;
         }
     }
     cost
+}
+
+/// Weight of the stiff penalties (γ gauge, monotonicity) for observations of total weight
+/// `wsum`: stiff enough to hold them to ~1e-4 against the data term.
+fn penalty_weight(wsum: f64) -> f64 {
+    1e3 * wsum
 }
 
 /// Levenberg-Marquardt on the joint problem. `obs` must be sorted by point.
@@ -305,11 +313,10 @@ pub(crate) fn refine(
         .map(|o| f64::from(o.weight))
         .sum::<f64>()
         .max(1.0);
-    // Stiff enough to hold the gauge and monotonicity to ~1e-4 against the data term.
-    let wpen = 1e3 * wsum;
+    let wpen = penalty_weight(wsum);
     let mut lambda = 1e-3;
     let mut small_steps = 0;
-    let mut cost = total_cost(obs, cfg, state, wpen);
+    let mut cost = total_cost(obs, cfg, state, wsum);
     let mut report = JointReport::default();
     // Point ranges.
     let mut ranges = Vec::new();
@@ -423,7 +430,7 @@ pub(crate) fn refine(
                 }
                 cand.log_l[pi] += (rhs / hd).clamp(-2.0, 2.0);
             }
-            let new_cost = total_cost(obs, cfg, &cand, wpen);
+            let new_cost = total_cost(obs, cfg, &cand, wsum);
             if new_cost.is_finite() && new_cost < cost {
                 let rel = (cost - new_cost) / cost.max(1e-30);
                 *state = cand;
@@ -526,22 +533,12 @@ pub(crate) fn regauge(state: &mut JointState, gauge: f64) {
         state.c = [c[0], c[1], c[2], c[3]];
     }
     // V^{1/k} - 1 = v1 r² + v2 r⁴ + v3 r⁶ by least squares on r² ∈ [0, 1.2].
-    let mut vta = nalgebra::Matrix3::<f64>::zeros();
-    let mut vtb = nalgebra::Vector3::<f64>::zeros();
-    for i in 0..=48 {
+    let samples = (0..=48).map(|i| {
         let r2 = 1.2 * f64::from(i) / 48.0;
-        let t = vignette(&state.v, r2).powf(1.0 / k) - 1.0;
-        let p = [r2, r2 * r2, r2 * r2 * r2];
-        for a in 0..3 {
-            vtb[a] += p[a] * t;
-            for c in 0..3 {
-                vta[(a, c)] += p[a] * p[c];
-            }
-        }
-    }
-    if let Some(ch) = vta.cholesky() {
-        let v = ch.solve(&vtb);
-        state.v = [v[0], v[1], v[2]];
+        (r2, vignette(&state.v, r2).powf(1.0 / k))
+    });
+    if let Some(v) = fit_even_polynomial(samples) {
+        state.v = v;
     }
     if let Some(sp) = state.spline.as_mut() {
         for v in &mut sp.values {
@@ -551,6 +548,20 @@ pub(crate) fn regauge(state: &mut JointState, gauge: f64) {
     for l in state.log_e.iter_mut().chain(state.log_l.iter_mut()) {
         *l /= k;
     }
+}
+
+/// The polynomial `v` of [`vignette`] nearest, by least squares, to samples `(r², V)`; `None`
+/// when the samples do not determine it.
+pub(crate) fn fit_even_polynomial(samples: impl Iterator<Item = (f64, f64)>) -> Option<[f64; 3]> {
+    let mut ata = nalgebra::Matrix3::<f64>::zeros();
+    let mut atb = nalgebra::Vector3::<f64>::zeros();
+    for (r2, v) in samples {
+        let p = nalgebra::Vector3::new(r2, r2 * r2, r2 * r2 * r2);
+        ata += p * p.transpose();
+        atb += p * (v - 1.0);
+    }
+    let v = ata.cholesky()?.solve(&atb);
+    Some([v[0], v[1], v[2]])
 }
 
 /// Points per parallel work item of the normal-equation accumulation.

@@ -305,7 +305,8 @@ fn fit_fixed(
 }
 
 /// A channel's response and radiances fitted with the exposures `log_e` and the vignetting
-/// `v` (the polynomial, or the spline when there is one) held, from each response start in `starts`, keeping the lowest robust cost.
+/// `v` (the polynomial, or the spline when there is one) held, from each response start in
+/// `starts`, keeping the lowest robust cost.
 ///
 /// Started from the mean response and from green's response (channels of one camera are
 /// usually alike): with the exposures fixed the problem has no gauge freedom left, but LM from

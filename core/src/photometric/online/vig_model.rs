@@ -14,7 +14,9 @@
 use serde::{Deserialize, Serialize};
 
 use super::super::flat::VignetteKind;
-use super::super::joint::{JointConfig, JointReport, JointState, Obs, refine};
+use super::super::joint::{
+    JointConfig, JointReport, JointState, Obs, fit_even_polynomial, refine, vignette,
+};
 use super::super::spline::RadialSpline;
 use super::super::vignette::VignetteModel;
 use crate::error::CoreResult;
@@ -41,7 +43,7 @@ pub(super) const AUTO_DEPARTURE: f64 = 0.005;
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 pub struct VignetteChoice {
-    /// `polynomial` or `spline`.
+    /// `polynomial`, `spline`, or `none` (vignetting not fitted).
     pub model: String,
     /// Robust cost of the polynomial fit (when both were fitted).
     pub polynomial_cost: Option<f64>,
@@ -61,7 +63,14 @@ pub(super) fn choose(
     model: &VignetteModel,
     progress: &dyn Progress,
 ) -> CoreResult<VignetteChoice> {
-    if kind == VignetteKind::Polynomial || !joint.fit_vignette {
+    if !joint.fit_vignette {
+        return Ok(VignetteChoice {
+            model: "none".into(),
+            reason: "fit_vignette is off".into(),
+            ..VignetteChoice::default()
+        });
+    }
+    if kind == VignetteKind::Polynomial {
         return Ok(VignetteChoice {
             model: "polynomial".into(),
             reason: "requested".into(),
@@ -160,24 +169,16 @@ fn polynomial_departure(sp: &RadialSpline, model: &VignetteModel) -> f64 {
     for y in (0..model.height).step_by(4) {
         for x in (0..model.width).step_by(4) {
             let r2 = model.r2(x as f64 + 0.5, y as f64 + 0.5);
-            samples.push((r2, sp.eval(r2.sqrt()) - 1.0));
+            samples.push((r2, sp.eval(r2.sqrt())));
         }
     }
-    let mut ata = nalgebra::Matrix3::<f64>::zeros();
-    let mut atb = nalgebra::Vector3::<f64>::zeros();
-    for &(r2, t) in &samples {
-        let p = nalgebra::Vector3::new(r2, r2 * r2, r2 * r2 * r2);
-        ata += p * p.transpose();
-        atb += p * t;
-    }
-    let Some(ch) = ata.cholesky() else {
+    let Some(v) = fit_even_polynomial(samples.iter().copied()) else {
         return 0.0;
     };
-    let v = ch.solve(&atb);
     let ss: f64 = samples
         .iter()
         .map(|&(r2, t)| {
-            let d = t - r2 * (v[0] + r2 * (v[1] + r2 * v[2]));
+            let d = t - vignette(&v, r2);
             d * d
         })
         .sum();
