@@ -7,7 +7,7 @@
 //! editing images.
 //!
 //! ```text
-//! cargo run -p caliper-core --release --example blind_eval -- tune|eval|time [--only TEXT] [-v]
+//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|eval|time [--only TEXT] [-v]
 //! cargo run -p caliper-core --release --example blind_eval -- size|size-eval|starts
 //! ```
 //!
@@ -23,6 +23,8 @@
 //! Two fixed splits that share no source image, no seed, and only half their kernel generator:
 //! * **TUNE**: astronaut, camera, coffee, chelsea, immunohistochemistry, OpenCV
 //!   `left01/03/05/07/09/11`; 4 kernels each from [`shake_3d`], seeds from 1.
+//! * **TREMOR** (tuning too): the TUNE photos with kernels from [`shake_tremor`] (drift plus
+//!   an oscillating tremor: bright dwell points joined by faint strokes), seeds from 5 000 001.
 //! * **EVAL**: brick, coins, rocket, grass, gravel, hubble_deep_field, BoofCV `1/5/9/13/17/21`;
 //!   2 kernels each from [`shake_3d`] (seeds from 1 000 001) and 2 from [`shake_impulsive`], a
 //!   different trajectory model. EVAL is for reporting only: never tune on it.
@@ -47,14 +49,18 @@
 //! gradient autocorrelation profiles to stderr), `BLIND_DUMP=DIR` (write the sharp,
 //! blurred and restored PNGs of each case), `BLIND_TRACE=1` (also print, per pyramid level, the
 //! error ratio of that level's kernel resampled to full scale and its extent, support and RMS
-//! radius against the truth's: where the estimate goes wrong on the way up).
+//! radius against the truth's: where the estimate goes wrong on the way up), `BLIND_FIXED=pyramid`
+//! or `finest` (no blind run: the estimation started from the true kernel, in a window of 1.3 ×
+//! its side, through every level or the full-resolution level alone; the ratio says whether
+//! the truth is a fixed point of the estimator).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use caliper_core::deconv::{
-    BlindParams, DEFAULT_SATURATION, Plane, Psf, TvParams, blind_deconv, error_ratio_aligned,
-    estimate_blur_extent, estimate_kernel_trace, gradient_autocorrelation, psnr, tv_deconv,
+    BlindParams, DEFAULT_SATURATION, KernelStart, Plane, Psf, TvParams, blind_deconv,
+    error_ratio_aligned, estimate_blur_extent, estimate_kernel_from, estimate_kernel_trace,
+    gradient_autocorrelation, psnr, tv_deconv,
 };
 use caliper_core::io::{ImageLimits, decode_gray8};
 use caliper_core::progress::NoProgress;
@@ -169,6 +175,42 @@ fn shake_impulsive(rng: &mut Rng, extent: f64) -> Psf {
         if (start..stop).contains(&t) {
             pts.push(x);
         }
+    }
+    rasterise(&pts, extent)
+}
+
+/// A third model, for the `tremor` tuning split: the slow hand drift of [`shake_3d`] plus a
+/// physiological tremor, an 8–12 Hz oscillation of the view direction (an ellipse of random
+/// shape and axis) seen for 1–3 of its periods. At every turn of the oscillation the image
+/// stands almost still, so the kernel is a zigzag or loop with bright dwell points and faint
+/// fast strokes between them, the kind of kernel measured on real camera shake (Levin et al.
+/// 2009) that the smooth [`shake_3d`] paths hardly produce. Not the EVAL model.
+fn shake_tremor(rng: &mut Rng, extent: f64) -> Psf {
+    let n = 600;
+    let periods = rng.range(1.0, 3.0);
+    let phase = rng.range(0.0, std::f64::consts::TAU);
+    let axis = rng.range(0.0, std::f64::consts::PI);
+    let ecc = rng.range(0.0, 0.6) * if rng.uniform() < 0.5 { -1.0 } else { 1.0 };
+    // Drift speed relative to the tremor's peak speed: below 1 the path turns back on itself.
+    let drift_ratio = rng.range(0.1, 1.2);
+    let drift_dir = rng.range(0.0, std::f64::consts::TAU);
+    let (mut jx, mut jy) = (0.0f64, 0.0f64);
+    let (mut vx, mut vy) = (0.0f64, 0.0f64);
+    let mut pts = Vec::with_capacity(n);
+    for i in 0..n {
+        let t = i as f64 / n as f64;
+        let w = std::f64::consts::TAU * periods;
+        let (u, v) = ((w * t + phase).sin(), ecc * (w * t + phase).cos());
+        let (ox, oy) = (
+            u * axis.cos() - v * axis.sin(),
+            u * axis.sin() + v * axis.cos(),
+        );
+        // Slow wander of the drift direction (AR(1) velocity), scaled to the tremor's speed.
+        vx = 0.98 * vx + 0.02 * rng.normal();
+        vy = 0.98 * vy + 0.02 * rng.normal();
+        jx += (drift_dir.cos() + vx) * drift_ratio * w / n as f64;
+        jy += (drift_dir.sin() + vy) * drift_ratio * w / n as f64;
+        pts.push((ox + jx, oy + jy));
     }
     rasterise(&pts, extent)
 }
@@ -322,6 +364,8 @@ fn make_case(name: String, sq: &[f64], psf: Psf, rng: &mut Rng) -> Case {
 #[derive(Clone, Copy, PartialEq)]
 enum Split {
     Tune,
+    /// The TUNE photos with [`shake_tremor`] kernels and other seeds (tuning only).
+    Tremor,
     Eval,
 }
 
@@ -329,7 +373,7 @@ fn sources(root: &Path, split: Split) -> Vec<(String, PathBuf)> {
     let sk = root.join("blur/skimage");
     let mut out = Vec::new();
     match split {
-        Split::Tune => {
+        Split::Tune | Split::Tremor => {
             for n in [
                 "astronaut",
                 "camera",
@@ -373,6 +417,7 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
     let saturate = std::env::var("BLIND_SAT").ok();
     let base = match split {
         Split::Tune => 1u64,
+        Split::Tremor => 5_000_001,
         Split::Eval => 1_000_001,
     };
     for (si, (name, path)) in sources(root, split).into_iter().enumerate() {
@@ -386,6 +431,8 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
             let extent = 11.0 + 30.0 * (j as f64 + rng.uniform()) / 4.0;
             let (gen_name, psf) = if split == Split::Eval && j % 2 == 1 {
                 ("imp", shake_impulsive(&mut rng, extent))
+            } else if split == Split::Tremor {
+                ("trem", shake_tremor(&mut rng, extent))
             } else {
                 ("3d", shake_3d(&mut rng, extent))
             };
@@ -404,6 +451,19 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
         }
     }
     out
+}
+
+/// `k` centred in an odd `side × side` window (zero border).
+fn embed(k: &Psf, side: usize) -> Psf {
+    let side = side.max(k.width.max(k.height)) | 1;
+    let (ox, oy) = ((side - k.width) / 2, (side - k.height) / 2);
+    let mut w = vec![0.0; side * side];
+    for y in 0..k.height {
+        for x in 0..k.width {
+            w[(y + oy) * side + x + ox] = k.at(x, y);
+        }
+    }
+    Psf::from_weights(side, side, w).expect("psf")
 }
 
 /// Extent (bounding box of entries ≥ 5 % of the max), support count and RMS radius.
@@ -457,6 +517,26 @@ fn print_kernel(k: &Psf) {
     }
 }
 
+/// Counts a case at ratio ≤ 3 per source image and per kernel-size class.
+fn tally(
+    per_source: &mut Vec<(String, usize, usize)>,
+    by_size: &mut [(usize, usize); 2],
+    case: &Case,
+    r: f64,
+) {
+    let src = case.name.split('/').next().unwrap_or("").to_string();
+    match per_source.iter_mut().find(|(n, _, _)| *n == src) {
+        Some(e) => {
+            e.1 += usize::from(r <= 3.0);
+            e.2 += 1;
+        }
+        None => per_source.push((src, usize::from(r <= 3.0), 1)),
+    }
+    let slot = &mut by_size[usize::from(case.psf.width > SIZE_SPLIT)];
+    slot.0 += usize::from(r <= 3.0);
+    slot.1 += 1;
+}
+
 fn run(split: Split, only: Option<&str>, verbose: bool) {
     let root = PathBuf::from(
         std::env::var("CALIPER_BLIND_DATA").unwrap_or_else(|_| "../shared/data".into()),
@@ -472,6 +552,11 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
     {
         params.iterations_per_level = k;
     }
+    let fixed = match std::env::var("BLIND_FIXED").as_deref() {
+        Ok("finest") => Some(KernelStart::Finest),
+        Ok("pyramid") => Some(KernelStart::Pyramid),
+        _ => None,
+    };
     let mut ratios = Vec::new();
     let mut times = Vec::new();
     let mut per_source: Vec<(String, usize, usize)> = Vec::new();
@@ -492,6 +577,36 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         }
         if std::env::var("BLIND_NOSAT").is_ok() {
             params.final_tv.saturation = None;
+        }
+        if let Some(mode) = fixed {
+            // Is the truth a fixed point? Start from it in a window of 1.3 × its side.
+            let truth =
+                tv_deconv(&case.blurred, &case.psf, &params.final_tv, &NoProgress).expect("tv");
+            let start = embed(
+                &case.psf,
+                ((1.3 * case.psf.width as f64).round() as usize) | 1,
+            );
+            let k = estimate_kernel_from(&case.blurred, &params, &start, mode).expect("refine");
+            let img = tv_deconv(&case.blurred, &k, &params.final_tv, &NoProgress).expect("tv");
+            let r =
+                error_ratio_aligned(&case.sharp, &img, &truth, BORDER, MAX_SHIFT).expect("ratio");
+            println!(
+                "{:<34} true {:>2} px  from truth  ratio {r:7.2}{}  {}",
+                case.name,
+                case.psf.width,
+                if r > 3.0 { "  FAIL" } else { "" },
+                kernel_stats(&k)
+            );
+            if verbose {
+                eprintln!(" true:");
+                print_kernel(&case.psf);
+                eprintln!(" estimated:");
+                print_kernel(&k);
+            }
+            tally(&mut per_source, &mut by_size, &case, r);
+            ratios.push(r);
+            times.push(0.0);
+            continue;
         }
         let t = Instant::now();
         let out = blind_deconv(&case.blurred, &params, &NoProgress).expect("blind");
@@ -551,17 +666,7 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
             eprintln!(" estimated:");
             print_kernel(&out.psf);
         }
-        let src = case.name.split('/').next().unwrap_or("").to_string();
-        match per_source.iter_mut().find(|(n, _, _)| *n == src) {
-            Some(e) => {
-                e.1 += usize::from(r <= 3.0);
-                e.2 += 1;
-            }
-            None => per_source.push((src, usize::from(r <= 3.0), 1)),
-        }
-        let slot = &mut by_size[usize::from(case.psf.width > SIZE_SPLIT)];
-        slot.0 += usize::from(r <= 3.0);
-        slot.1 += 1;
+        tally(&mut per_source, &mut by_size, &case, r);
         ratios.push(r);
         times.push(dt);
     }
@@ -788,6 +893,7 @@ fn main() {
     let verbose = args.iter().any(|a| a == "-v");
     match args.first().map(String::as_str) {
         Some("tune") => run(Split::Tune, only, verbose),
+        Some("tremor") => run(Split::Tremor, only, verbose),
         Some("eval") => run(Split::Eval, only, verbose),
         Some("time") => time(),
         // `size`: blur-extent estimate vs truth; `starts`: several windows per TUNE case with
@@ -795,6 +901,8 @@ fn main() {
         Some("size") => sizes(Split::Tune),
         Some("starts") => starts(Split::Tune),
         Some("size-eval") => sizes(Split::Eval),
-        _ => eprintln!("usage: blind_eval tune|eval|time|size|size-eval|starts [--only TEXT] [-v]"),
+        _ => eprintln!(
+            "usage: blind_eval tune|tremor|eval|time|size|size-eval|starts [--only TEXT] [-v]"
+        ),
     }
 }

@@ -123,6 +123,35 @@ fn blind_recovers_motion_kernel() {
     assert!(ratio <= 3.0, "error ratio {ratio:.2}");
 }
 
+/// The fixed-point diagnostics: from the truth, on a scene with edges in every direction, both
+/// the finest level and the whole pyramid stay at the truth; a start that is not square is
+/// refused.
+#[test]
+fn blind_keeps_the_true_kernel_as_a_start() {
+    let sharp = shapes(160, 160, 9);
+    let truth = Psf::motion(9.0, 40.0).expect("motion");
+    let blurred = add_noise(&blur_reflect(&sharp, &truth), 0.01, 13);
+    let params = BlindParams::default();
+    let with_truth = tv_deconv(&blurred, &truth, &params.final_tv, &NoProgress).expect("tv");
+    let mut w = vec![0.0; 15 * 15];
+    for y in 0..truth.height {
+        for x in 0..truth.width {
+            w[(y + (15 - truth.height) / 2) * 15 + x + (15 - truth.width) / 2] = truth.at(x, y);
+        }
+    }
+    let start = Psf::from_weights(15, 15, w).expect("psf");
+    for mode in [KernelStart::Finest, KernelStart::Pyramid] {
+        let k = estimate_kernel_from(&blurred, &params, &start, mode).expect("from truth");
+        assert_eq!((k.width, k.height), (15, 15));
+        let img = tv_deconv(&blurred, &k, &params.final_tv, &NoProgress).expect("tv");
+        let ratio = error_ratio_aligned(&sharp, &img, &with_truth, 16, 6).expect("ratio");
+        eprintln!("{mode:?}: error ratio {ratio:.2}");
+        assert!(ratio <= 2.0, "{mode:?}: error ratio {ratio:.2}");
+    }
+    let oblong = Psf::from_weights(5, 3, vec![1.0; 15]).expect("psf");
+    assert!(estimate_kernel_from(&blurred, &params, &oblong, KernelStart::Finest).is_err());
+}
+
 #[test]
 fn blind_rl_runs_and_normalises() {
     let sharp = scene(96, 96);
