@@ -71,6 +71,12 @@
 //!   current support dilated by a pixel, 3 % cleaning): from the truth (below) TREMOR 28 → 32 of
 //!   44, from the usual start no change (TUNE 20, TREMOR 15 of 44).
 //!
+//! * the smoothness term above only on two-direction images: `η = 5·clamp((s − 0.45)/0.15)`,
+//!   `s` the share of the gradient energy within ±10° of the two strongest orientations (boards
+//!   0.43–0.85, photos 0.33–0.57): TUNE 20 → 21 and TREMOR 15 → 20 of 44 (boards 3 → 5 and
+//!   1 → 6), mean PSNR +0.5 and +0.8 dB; but on EVAL, run once against the same binary without
+//!   it, 22 → 21 of 48 (median 3.54 → 3.27, worst 24 → 34, 23.39 → 23.40 dB): no held-out gain.
+//!
 //! **The estimator is biased, not lost.** Started from the true kernel
 //! ([`estimate_kernel_from`], `BLIND_FIXED=pyramid|finest` in the harness, window 1.3 × the
 //! truth), the whole pyramid ends at 23 of 44 TUNE cases at ratio ≤ 3 (chessboards 6 of 24,
