@@ -8,7 +8,7 @@
 //!
 //! ```text
 //! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|eval|time [--only TEXT] [-v]
-//! cargo run -p caliper-core --release --example blind_eval -- size|size-eval|starts
+//! cargo run -p caliper-core --release --example blind_eval -- size|size-tremor|size-eval|starts
 //! ```
 //!
 //! Sharp images come from `CALIPER_BLIND_DATA` (default `../shared/data`, i.e. the shared data
@@ -900,9 +900,10 @@ fn main() {
         // their true ratios and blind selection criteria (for offline analysis).
         Some("size") => sizes(Split::Tune),
         Some("starts") => starts(Split::Tune),
+        Some("size-tremor") => sizes(Split::Tremor),
         Some("size-eval") => sizes(Split::Eval),
         _ => eprintln!(
-            "usage: blind_eval tune|tremor|eval|time|size|size-eval|starts [--only TEXT] [-v]"
+            "usage: blind_eval tune|tremor|eval|time|size|size-tremor|size-eval|starts [--only TEXT] [-v]"
         ),
     }
 }
