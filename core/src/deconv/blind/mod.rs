@@ -61,16 +61,14 @@
 //! * a smoothness term `η·γ·‖∇k‖²` beside `γ‖k‖²` in the kernel step (against the scattered
 //!   ghost segments): η = 1 20 of 44 (median 3.58), η = 5 21 (chessboards 6 of 24 against 3,
 //!   but the natural photos 15 of 20 against 17 and ≤ 2 on 9 against 14, mean PSNR 21.82
-//!   against 21.60 dB), η = 20 11 (the path thickens), η = 5 at the coarse levels only 18.
-//!
+//!   against 21.60 dB), η = 20 11 (the path thickens), η = 5 at the coarse levels only 18;
 //! * hysteresis cleaning (entries down to 3 % of the peak kept when 8-connected to one above
 //!   the 10 % threshold, so that the faint strokes between a tremor kernel's dwell points
 //!   survive; `blind_eval -- tremor`, baseline 15 of 44): 6 of 44 at every level, 12 at the
 //!   finest only — the noise carpet next to the path survives with the strokes;
 //! * a polish after the finest level (one or three more kernel steps restricted to the
 //!   current support dilated by a pixel, 3 % cleaning): from the truth (below) TREMOR 28 → 32 of
-//!   44, from the usual start no change (TUNE 20, TREMOR 15 of 44).
-//!
+//!   44, from the usual start no change (TUNE 20, TREMOR 15 of 44);
 //! * the smoothness term above only on two-direction images: `η = 5·clamp((s − 0.45)/0.15)`,
 //!   `s` the share of the gradient energy within ±10° of the two strongest orientations (boards
 //!   0.43–0.85, photos 0.33–0.57): TUNE 20 → 21 and TREMOR 15 → 20 of 44 (boards 3 → 5 and
