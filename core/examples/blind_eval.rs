@@ -197,9 +197,9 @@ fn shake_tremor(rng: &mut Rng, extent: f64) -> Psf {
     let (mut jx, mut jy) = (0.0f64, 0.0f64);
     let (mut vx, mut vy) = (0.0f64, 0.0f64);
     let mut pts = Vec::with_capacity(n);
+    let w = std::f64::consts::TAU * periods;
     for i in 0..n {
         let t = i as f64 / n as f64;
-        let w = std::f64::consts::TAU * periods;
         let (u, v) = ((w * t + phase).sin(), ecc * (w * t + phase).cos());
         let (ox, oy) = (
             u * axis.cos() - v * axis.sin(),
@@ -453,19 +453,6 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
     out
 }
 
-/// `k` centred in an odd `side × side` window (zero border).
-fn embed(k: &Psf, side: usize) -> Psf {
-    let side = side.max(k.width.max(k.height)) | 1;
-    let (ox, oy) = ((side - k.width) / 2, (side - k.height) / 2);
-    let mut w = vec![0.0; side * side];
-    for y in 0..k.height {
-        for x in 0..k.width {
-            w[(y + oy) * side + x + ox] = k.at(x, y);
-        }
-    }
-    Psf::from_weights(side, side, w).expect("psf")
-}
-
 /// Extent (bounding box of entries ≥ 5 % of the max), support count and RMS radius.
 fn kernel_stats(k: &Psf) -> String {
     let max = k.data.iter().copied().fold(0.0, f64::max);
@@ -515,6 +502,14 @@ fn print_kernel(k: &Psf) {
             .collect();
         eprintln!("  |{row}|");
     }
+}
+
+/// The true kernel above the estimated one.
+fn print_kernels(truth: &Psf, estimate: &Psf) {
+    eprintln!(" true:");
+    print_kernel(truth);
+    eprintln!(" estimated:");
+    print_kernel(estimate);
 }
 
 /// Counts a case at ratio ≤ 3 per source image and per kernel-size class.
@@ -582,10 +577,8 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
             // Is the truth a fixed point? Start from it in a window of 1.3 × its side.
             let truth =
                 tv_deconv(&case.blurred, &case.psf, &params.final_tv, &NoProgress).expect("tv");
-            let start = embed(
-                &case.psf,
-                ((1.3 * case.psf.width as f64).round() as usize) | 1,
-            );
+            let side = ((1.3 * case.psf.width as f64).round() as usize) | 1;
+            let start = Psf::from_weights(side, side, case.psf.centred_weights(side)).expect("psf");
             let k = estimate_kernel_from(&case.blurred, &params, &start, mode).expect("refine");
             let img = tv_deconv(&case.blurred, &k, &params.final_tv, &NoProgress).expect("tv");
             let r =
@@ -598,10 +591,7 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
                 kernel_stats(&k)
             );
             if verbose {
-                eprintln!(" true:");
-                print_kernel(&case.psf);
-                eprintln!(" estimated:");
-                print_kernel(&k);
+                print_kernels(&case.psf, &k);
             }
             tally(&mut per_source, &mut by_size, &case, r);
             ratios.push(r);
@@ -661,10 +651,7 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
             }
         }
         if verbose {
-            eprintln!(" true:");
-            print_kernel(&case.psf);
-            eprintln!(" estimated:");
-            print_kernel(&out.psf);
+            print_kernels(&case.psf, &out.psf);
         }
         tally(&mut per_source, &mut by_size, &case, r);
         ratios.push(r);

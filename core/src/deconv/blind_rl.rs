@@ -53,7 +53,7 @@ pub fn blind_richardson_lucy(
     let mut x = y.clone();
     let r = ks as f64 / 4.0;
     let mut k: Vec<f64> = Psf::disc(r)
-        .map(|d| embed(&d, ks))
+        .map(|d| d.centred_weights(ks))
         .unwrap_or_else(|_| vec![1.0 / (ks * ks) as f64; ks * ks]);
     let (h, w) = (fft.height, fft.width);
     let c = ks / 2;
@@ -109,19 +109,4 @@ pub fn blind_richardson_lucy(
         Plane::new(img.width, img.height, data)?,
         Psf::from_weights(ks, ks, k)?,
     ))
-}
-
-/// A PSF centred in a `ks × ks` window (cropped if larger).
-fn embed(p: &Psf, ks: usize) -> Vec<f64> {
-    let mut out = vec![0.0; ks * ks];
-    let (oc, pcx, pcy) = (ks as isize / 2, p.width as isize / 2, p.height as isize / 2);
-    for y in 0..p.height {
-        for x in 0..p.width {
-            let (tx, ty) = (x as isize - pcx + oc, y as isize - pcy + oc);
-            if (0..ks as isize).contains(&tx) && (0..ks as isize).contains(&ty) {
-                out[ty as usize * ks + tx as usize] += p.at(x, y);
-            }
-        }
-    }
-    out
 }

@@ -365,6 +365,26 @@ impl Psf {
         self.data[y * self.width + x]
     }
 
+    /// The weights centred in a `side × side` window (row-major): a zero border around them,
+    /// or cropped when the window is smaller (the cropped weight is dropped, not renormalised).
+    pub fn centred_weights(&self, side: usize) -> Vec<f64> {
+        let mut out = vec![0.0; side * side];
+        let (oc, pcx, pcy) = (
+            side as isize / 2,
+            self.width as isize / 2,
+            self.height as isize / 2,
+        );
+        for y in 0..self.height {
+            for x in 0..self.width {
+                let (tx, ty) = (x as isize - pcx + oc, y as isize - pcy + oc);
+                if (0..side as isize).contains(&tx) && (0..side as isize).contains(&ty) {
+                    out[ty as usize * side + tx as usize] += self.at(x, y);
+                }
+            }
+        }
+        out
+    }
+
     fn from_rows(rows: Vec<Vec<f64>>) -> CoreResult<Self> {
         let height = rows.len();
         let width = rows.first().map_or(0, Vec::len);

@@ -133,13 +133,7 @@ fn blind_keeps_the_true_kernel_as_a_start() {
     let blurred = add_noise(&blur_reflect(&sharp, &truth), 0.01, 13);
     let params = BlindParams::default();
     let with_truth = tv_deconv(&blurred, &truth, &params.final_tv, &NoProgress).expect("tv");
-    let mut w = vec![0.0; 15 * 15];
-    for y in 0..truth.height {
-        for x in 0..truth.width {
-            w[(y + (15 - truth.height) / 2) * 15 + x + (15 - truth.width) / 2] = truth.at(x, y);
-        }
-    }
-    let start = Psf::from_weights(15, 15, w).expect("psf");
+    let start = Psf::from_weights(15, 15, truth.centred_weights(15)).expect("psf");
     for mode in [KernelStart::Finest, KernelStart::Pyramid] {
         let k = estimate_kernel_from(&blurred, &params, &start, mode).expect("from truth");
         assert_eq!((k.width, k.height), (15, 15));
