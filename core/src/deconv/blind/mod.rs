@@ -73,7 +73,11 @@
 //!   `s` the share of the gradient energy within ±10° of the two strongest orientations (boards
 //!   0.43–0.85, photos 0.33–0.57): TUNE 20 → 21 and TREMOR 15 → 20 of 44 (boards 3 → 5 and
 //!   1 → 6), mean PSNR +0.5 and +0.8 dB; but on EVAL, run once against the same binary without
-//!   it, 22 → 21 of 48 (median 3.54 → 3.27, worst 24 → 34, 23.39 → 23.40 dB): no held-out gain.
+//!   it, 22 → 21 of 48 (median 3.54 → 3.27, worst 24 → 34, 23.39 → 23.40 dB): no held-out gain;
+//! * Levin et al. 2011's variational latent (posterior mean, variance charged to `‖k‖²`) in
+//!   place of the L0 cartoon: blobs, 0–2 of TUNE's 4 `camera` cases against 4; a non-negative
+//!   kernel solve (projected Barzilai–Borwein) at the coarse levels: TUNE 23 and TREMOR 19 →
+//!   20 of 44, but EVAL 22 → 20 of 48 (`core/benches/deconv_set.md` has both).
 //!
 //! **The estimator is biased, not lost.** Started from the true kernel
 //! ([`estimate_kernel_from`], `BLIND_FIXED=pyramid|finest` in the harness, window 1.3 × the
