@@ -7,8 +7,8 @@
 //! editing images.
 //!
 //! ```text
-//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|eval|time [--only TEXT] [-v]
-//! cargo run -p caliper-core --release --example blind_eval -- size|size-tremor|size-eval|starts
+//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|time [--only TEXT] [-v]
+//! cargo run -p caliper-core --release --example blind_eval -- size|size-tremor|size-texture|size-eval|starts
 //! ```
 //!
 //! Sharp images come from `CALIPER_BLIND_DATA` (default `../shared/data`, i.e. the shared data
@@ -20,11 +20,16 @@
 //! enough gradient energy is taken (the 24 px context means the border pixels see real content,
 //! as in a photo).
 //!
-//! Two fixed splits that share no source image, no seed, and only half their kernel generator:
+//! Fixed splits; the tuning ones share no source image and no seed with EVAL, and only half its
+//! kernel generator:
 //! * **TUNE**: astronaut, camera, coffee, chelsea, immunohistochemistry, OpenCV
 //!   `left01/03/05/07/09/11`; 4 kernels each from [`shake_3d`], seeds from 1.
 //! * **TREMOR** (tuning too): the TUNE photos with kernels from [`shake_tremor`] (drift plus
 //!   an oscillating tremor: bright dwell points joined by faint strokes), seeds from 5 000 001.
+//! * **TEXTURE** (tuning too): repetitive texture, the README's named failure case, without
+//!   EVAL's texture photos: scikit-image's `text`, `moon` and `clock` (used nowhere else) and
+//!   generated walls of tiles, packed pebbles and grass-like strands (`common/textures.rs`,
+//!   two seeds each); [`shake_3d`] kernels, seeds from 7 000 001.
 //! * **EVAL**: brick, coins, rocket, grass, gravel, hubble_deep_field, BoofCV `1/5/9/13/17/21`;
 //!   2 kernels each from [`shake_3d`] (seeds from 1 000 001) and 2 from [`shake_impulsive`], a
 //!   different trajectory model. EVAL is for reporting only: never tune on it.
@@ -78,6 +83,8 @@ const SIZE_SPLIT: usize = 29;
 #[path = "common/rng.rs"]
 mod rng;
 use rng::Rng;
+#[path = "common/textures.rs"]
+mod textures;
 
 /// Splat a trajectory (equal-time samples, pixel offsets) bilinearly into an odd square kernel
 /// whose larger extent is `extent` px, normalised.
@@ -366,6 +373,9 @@ enum Split {
     Tune,
     /// The TUNE photos with [`shake_tremor`] kernels and other seeds (tuning only).
     Tremor,
+    /// Repetitive textures (tuning only): generated walls, pebbles and strands
+    /// ([`textures`]) and the unused skimage photos `text`, `moon`, `clock`.
+    Texture,
     Eval,
 }
 
@@ -388,6 +398,11 @@ fn sources(root: &Path, split: Split) -> Vec<(String, PathBuf)> {
                     n.to_string(),
                     root.join(format!("camera/opencv_stereo/{n}.jpg")),
                 ));
+            }
+        }
+        Split::Texture => {
+            for n in ["text", "moon", "clock"] {
+                out.push((n.to_string(), sk.join(format!("{n}.png"))));
             }
         }
         Split::Eval => {
@@ -418,11 +433,28 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
     let base = match split {
         Split::Tune => 1u64,
         Split::Tremor => 5_000_001,
+        Split::Texture => 7_000_001,
         Split::Eval => 1_000_001,
     };
-    for (si, (name, path)) in sources(root, split).into_iter().enumerate() {
-        let Some(src) = load(&path) else {
-            eprintln!("missing source {} (set CALIPER_BLIND_DATA)", path.display());
+    let mut srcs: Vec<(String, Option<textures::Source>)> = sources(root, split)
+        .into_iter()
+        .map(|(name, path)| {
+            let src = load(&path);
+            if src.is_none() {
+                eprintln!("missing source {} (set CALIPER_BLIND_DATA)", path.display());
+            }
+            (name, src)
+        })
+        .collect();
+    if split == Split::Texture {
+        for k in 0..2u64 {
+            srcs.push((format!("tiles{k}"), Some(textures::tiles(base + 100 + k))));
+            srcs.push((format!("pebbles{k}"), Some(textures::pebbles(base + 200 + k))));
+            srcs.push((format!("strands{k}"), Some(textures::strands(base + 300 + k))));
+        }
+    }
+    for (si, (name, src)) in srcs.into_iter().enumerate() {
+        let Some(src) = src else {
             continue;
         };
         for j in 0..4u64 {
@@ -881,6 +913,7 @@ fn main() {
     match args.first().map(String::as_str) {
         Some("tune") => run(Split::Tune, only, verbose),
         Some("tremor") => run(Split::Tremor, only, verbose),
+        Some("texture") => run(Split::Texture, only, verbose),
         Some("eval") => run(Split::Eval, only, verbose),
         Some("time") => time(),
         // `size`: blur-extent estimate vs truth; `starts`: several windows per TUNE case with
@@ -888,9 +921,10 @@ fn main() {
         Some("size") => sizes(Split::Tune),
         Some("starts") => starts(Split::Tune),
         Some("size-tremor") => sizes(Split::Tremor),
+        Some("size-texture") => sizes(Split::Texture),
         Some("size-eval") => sizes(Split::Eval),
         _ => eprintln!(
-            "usage: blind_eval tune|tremor|eval|time|size|size-tremor|size-eval|starts [--only TEXT] [-v]"
+            "usage: blind_eval tune|tremor|texture|eval|time|size|size-tremor|size-texture|size-eval|starts [--only TEXT] [-v]"
         ),
     }
 }

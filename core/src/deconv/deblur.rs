@@ -57,7 +57,7 @@ pub struct DeblurParams {
     /// below, and `blind` leaves them out of the kernel estimate; `null` treats them as linear.
     pub saturation: Option<f64>,
     /// Kernel side for `blind` / `blind_rl` (odd; default for `blind`: 1.4× the blur extent
-    /// estimated from the image, 15 px to a third of the shorter side; for `blind_rl`, and for
+    /// estimated from the image, 27 px to a third of the shorter side; for `blind_rl`, and for
     /// `blind` when no extent is found: 31 or a third of the shorter side).
     pub kernel_size: Option<usize>,
     /// Gyro trace, exposure and intrinsics for `gyro`.
