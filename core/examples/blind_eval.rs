@@ -449,8 +449,14 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
     if split == Split::Texture {
         for k in 0..2u64 {
             srcs.push((format!("tiles{k}"), Some(textures::tiles(base + 100 + k))));
-            srcs.push((format!("pebbles{k}"), Some(textures::pebbles(base + 200 + k))));
-            srcs.push((format!("strands{k}"), Some(textures::strands(base + 300 + k))));
+            srcs.push((
+                format!("pebbles{k}"),
+                Some(textures::pebbles(base + 200 + k)),
+            ));
+            srcs.push((
+                format!("strands{k}"),
+                Some(textures::strands(base + 300 + k)),
+            ));
         }
     }
     for (si, (name, src)) in srcs.into_iter().enumerate() {

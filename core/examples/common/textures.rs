@@ -34,7 +34,11 @@ pub fn tiles(seed: u64) -> Source {
             let u = c * fx + s * fy;
             let v = -s * fx + c * fy;
             let r = (v / row).floor();
-            let shift = if (r as i64).rem_euclid(2) == 1 { len / 2.0 } else { 0.0 };
+            let shift = if (r as i64).rem_euclid(2) == 1 {
+                len / 2.0
+            } else {
+                0.0
+            };
             let t = ((u + shift) / len).floor();
             let (du, dv) = ((u + shift) - t * len, v - r * row);
             let value = if du < mortar || dv < mortar {
@@ -57,15 +61,24 @@ pub fn pebbles(seed: u64) -> Source {
     let (lx, ly) = (light.cos(), light.sin());
     let count = 2500;
     for _ in 0..count {
-        let (cx, cy) = (rng.range(-10.0, SIDE as f64 + 10.0), rng.range(-10.0, SIDE as f64 + 10.0));
+        let (cx, cy) = (
+            rng.range(-10.0, SIDE as f64 + 10.0),
+            rng.range(-10.0, SIDE as f64 + 10.0),
+        );
         let a = rng.range(4.0, 14.0);
         let b = a * rng.range(0.5, 1.0);
         let th = rng.range(0.0, std::f64::consts::PI);
         let (c, s) = (th.cos(), th.sin());
         let g = rng.range(0.15, 0.85);
         let shade = rng.range(0.05, 0.2);
-        let (x0, x1) = ((cx - a).floor().max(0.0) as usize, ((cx + a).ceil() as usize).min(SIDE - 1));
-        let (y0, y1) = ((cy - a).floor().max(0.0) as usize, ((cy + a).ceil() as usize).min(SIDE - 1));
+        let (x0, x1) = (
+            (cx - a).floor().max(0.0) as usize,
+            ((cx + a).ceil() as usize).min(SIDE - 1),
+        );
+        let (y0, y1) = (
+            (cy - a).floor().max(0.0) as usize,
+            ((cy + a).ceil() as usize).min(SIDE - 1),
+        );
         for y in y0..=y1 {
             for x in x0..=x1 {
                 let (dx, dy) = (x as f64 - cx, y as f64 - cy);
