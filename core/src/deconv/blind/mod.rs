@@ -125,6 +125,7 @@ use crate::progress::Progress;
 pub use diagnose::{KernelStart, estimate_kernel_from};
 use kernel::{clean_kernel, kernel_step, recentre};
 use latent::{l0_restore, salient_threshold};
+use size::adaptive_kernel_size;
 pub use size::{estimate_blur_extent, gradient_autocorrelation};
 
 /// Parameters of [`blind_deconv`].
@@ -222,46 +223,6 @@ pub fn blind_deconv(
     let image = tv_deconv(img, &psf, &params.final_tv, progress)?;
     Ok(BlindOutput { image, psf })
 }
-
-/// The kernel window when none is given: [`WINDOW_FACTOR`] × the blur extent estimated by
-/// [`estimate_blur_extent`], within [`MIN_WINDOW`] and a third of the shorter image side
-/// (the fixed default of [`BlindParams::kernel_size_for`] when no blur lobe is found). A
-/// fixed window is either too small for long shakes (the path is clipped) or too large for
-/// short ones (the coarsest level no longer resolves them and the kernel step has more
-/// unknowns to fit noise with; since the kernel solve stops early this costs little, hence the
-/// 27 px floor, [`MIN_WINDOW`]); the pyramid depth follows the window so that the coarsest
-/// level always sees a ~5 px kernel.
-fn adaptive_kernel_size(
-    img: &Plane,
-    saturation: Option<f32>,
-    progress: &dyn Progress,
-) -> CoreResult<usize> {
-    let fixed = BlindParams::default().kernel_size_for(img.width, img.height)?;
-    let Some(extent) = estimate_blur_extent(img, saturation, progress)? else {
-        return Ok(fixed);
-    };
-    let max = (img.width.min(img.height) / 3) | 1;
-    let ks = ((extent * WINDOW_FACTOR).round() as usize) | 1;
-    Ok(ks.clamp(MIN_WINDOW.min(max), max.max(3)))
-}
-
-/// Window / estimated extent: estimates are within −33 %/+58 % of the truth on 80 % of the
-/// TUNE cases, and an underestimate clips the kernel while an overestimate costs time and
-/// accuracy (TUNE split at ratio ≤ 3: 1.2× 14 of 44, 1.4× 20, 1.7× 18; the fixed 31 px
-/// window 17, a window of 1.3× the true kernel side 19).
-const WINDOW_FACTOR: f64 = 1.4;
-
-/// The smallest automatic window (px). The blur-extent estimate reads the scene's own scale on
-/// repetitive texture (tiles, pebbles, grass, text: the first autocorrelation lobe is the
-/// texture's, estimate/truth median 0.27 on the `texture` tuning split), and a window below the
-/// kernel clips it, while a window larger than a small kernel now costs little (the 8-step
-/// kernel solve leaves the unused entries near zero). Camera-shake harness, cases at ratio ≤ 3,
-/// TUNE / TREMOR / TEXTURE (tuning splits, 44 / 44 / 36): 15 px 23 / 19 / 13, 21 px
-/// 23 / 19 / 14, **27 px 23 / 19 / 16**, 31 px 23 / 17 / 15, 35 px 23 / 16 / 15. Held-out
-/// EVAL, run once with 27 against the same code with 15: 22 → 27 of 48 (median 3.57 → 2.93,
-/// mean PSNR 23.61 → 23.80 dB; its texture photos brick, grass, gravel 1 → 5 of 12), time per
-/// 255² image unchanged (0.68 s median).
-const MIN_WINDOW: usize = 27;
 
 /// Pyramid step between levels (Pan et al. use √½).
 const LEVEL_RATIO: f64 = std::f64::consts::FRAC_1_SQRT_2;
