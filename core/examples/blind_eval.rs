@@ -51,7 +51,9 @@
 //! both solves: `saturation: null`), `BLIND_SAT=1` (over-exposed variant of
 //! the split: 1–6 % of each scene above the white level, see [`overexpose`]), `BLIND_SAT=2`
 //! (small light sources far above white, see [`light_sources`]), `BLIND_PROFILES=1` (with `size`: print the
-//! gradient autocorrelation profiles to stderr), `BLIND_DUMP=DIR` (write the sharp,
+//! gradient autocorrelation profiles to stderr), `BLIND_PEER=CMD` (also run a peer kernel
+//! estimator on each case with our window and score its kernel the same way; see
+//! `common/blind_peer.rs`), `BLIND_DUMP=DIR` (write the sharp,
 //! blurred and restored PNGs of each case), `BLIND_TRACE=1` (also print, per pyramid level, the
 //! error ratio of that level's kernel resampled to full scale and its extent, support and RMS
 //! radius against the truth's: where the estimate goes wrong on the way up), `BLIND_FIXED=pyramid`
@@ -83,6 +85,8 @@ const SIZE_SPLIT: usize = 29;
 #[path = "common/rng.rs"]
 mod rng;
 use rng::Rng;
+#[path = "common/blind_peer.rs"]
+mod blind_peer;
 #[path = "common/textures.rs"]
 mod textures;
 
@@ -596,6 +600,15 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
     // Cases at ratio <= 3 and all cases, by true kernel side <= SIZE_SPLIT px and beyond.
     let mut by_size = [(0usize, 0usize); 2];
     let mut psnrs: Vec<(f64, f64)> = Vec::new();
+    // The peer (`BLIND_PEER`, see `common/blind_peer.rs`): its ratios and times, its tallies.
+    let peer = std::env::var("BLIND_PEER").ok();
+    let peer_dir = std::env::temp_dir().join(format!("blind_peer_{}", std::process::id()));
+    if peer.is_some() {
+        std::fs::create_dir_all(&peer_dir).expect("peer scratch dir");
+    }
+    let mut peer_rows: Vec<(f64, f64)> = Vec::new();
+    let mut peer_source: Vec<(String, usize, usize)> = Vec::new();
+    let mut peer_size = [(0usize, 0usize); 2];
     for case in cases(&root, split) {
         if only.is_some_and(|o| !case.name.contains(o)) {
             continue;
@@ -665,6 +678,30 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
             if r > 3.0 { "  FAIL" } else { "" }
         );
         psnrs.push((p_est, p_truth));
+        if let Some(cmd) = peer.as_deref() {
+            // Same input, same window, same TV restoration and ratio.
+            let stem = case.name.replace('/', "_");
+            match blind_peer::estimate(cmd, &case.blurred, out.psf.width, &peer_dir, &stem) {
+                Ok((k, secs)) => {
+                    let img =
+                        tv_deconv(&case.blurred, &k, &params.final_tv, &NoProgress).expect("tv");
+                    let rp = error_ratio_aligned(&case.sharp, &img, &truth, BORDER, MAX_SHIFT)
+                        .expect("ratio");
+                    println!(
+                        "{:<34} peer ratio {rp:>7.2}  {secs:.2} s{}",
+                        "",
+                        if rp > 3.0 { "  FAIL" } else { "" }
+                    );
+                    if verbose {
+                        eprintln!(" peer:");
+                        print_kernel(&k);
+                    }
+                    tally(&mut peer_source, &mut peer_size, &case, rp);
+                    peer_rows.push((rp, secs));
+                }
+                Err(e) => eprintln!("peer: {e}"),
+            }
+        }
         if let Ok(dir) = std::env::var("BLIND_DUMP") {
             let stem = case.name.replace('/', "_");
             for (tag, p) in [
@@ -712,6 +749,34 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         "by kernel side (<=3): <= {SIZE_SPLIT} px {}/{}, > {SIZE_SPLIT} px {}/{}",
         by_size[0].0, by_size[0].1, by_size[1].0, by_size[1].1
     );
+    if !peer_rows.is_empty() {
+        let line: Vec<String> = peer_source
+            .iter()
+            .map(|(n, ok, all)| format!("{n} {ok}/{all}"))
+            .collect();
+        println!("peer per source (<=3): {}", line.join(", "));
+        println!(
+            "peer by kernel side (<=3): <= {SIZE_SPLIT} px {}/{}, > {SIZE_SPLIT} px {}/{}",
+            peer_size[0].0, peer_size[0].1, peer_size[1].0, peer_size[1].1
+        );
+        let n = peer_rows.len();
+        let mut r: Vec<f64> = peer_rows.iter().map(|p| p.0).collect();
+        let mut t: Vec<f64> = peer_rows.iter().map(|p| p.1).collect();
+        r.sort_by(f64::total_cmp);
+        t.sort_by(f64::total_cmp);
+        let le = |x: f64| r.iter().filter(|&&v| v <= x).count();
+        println!(
+            "peer {n} cases: <=3 {}/{n} ({:.0} %), <=2 {}/{n}, median {:.2}, worst {:.2}, \
+             s/image (kernel only) median {:.2}",
+            le(3.0),
+            100.0 * le(3.0) as f64 / n as f64,
+            le(2.0),
+            r[n / 2],
+            r[n - 1],
+            t[n / 2]
+        );
+        let _ = std::fs::remove_dir_all(&peer_dir);
+    }
     if ratios.is_empty() {
         return;
     }
