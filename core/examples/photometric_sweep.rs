@@ -20,10 +20,13 @@
 //! * `lens`: seeds from 4000, a fourth tuning set for the vignetting model: the tuning
 //!   programs and scenes under mechanical vignetting (a plateau, then a smoothstep shoulder)
 //!   or a strong Gaussian law, neither of them `eval`'s cos⁴.
+//! * `scenes`: seeds from 5000, a fifth tuning set for scene dependence: a dead-leaves scene
+//!   (occluding discs, used by no other set) under `eval`'s program mix and polynomial or
+//!   Gaussian vignetting.
 //!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \
-//!     [tuning|saturated|scripted|lens|eval|shared] [cases] [frames] [width] [height]
+//!     [tuning|saturated|scripted|lens|scenes|eval|shared] [cases] [frames] [width] [height]
 //! ```
 //!
 //! The exposure error is scored like `score_ref.json`'s `ratio_rmse_pct_gauge_aligned`: RMS
@@ -39,7 +42,8 @@
 //! `SWEEP_PARAMS='{"gamma_gauge": 0.5}'` (any `OnlineParams` JSON) runs the old fixed gauge
 //! `f(0.5) = 0.5` for comparison. `SWEEP_FRAMES=1` prints the first frames' exposure errors
 //! against the best common scale (`SWEEP_ALL=1`: also every 10th frame); `SWEEP_DEBUG=1` prints
-//! each case's camera and video settings (to rebuild it in a diagnostic). `shared` runs the
+//! each case's camera and video settings (to rebuild it in a diagnostic); `SWEEP_DUMP=DIR` writes
+//! each case's first frame as a PNG. `shared` runs the
 //! shared `ae_seq_seed0` (from `CALIPER_PHOTO_DATA`, default `../shared/data/photometric`)
 //! instead.
 
@@ -92,11 +96,13 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
     let saturated = set == "saturated";
     let scripted = set == "scripted";
     let lens = set == "lens";
+    let scenes = set == "scenes";
     let (seed, offset) = match set {
         "eval" => (1000 + i as u64, 17),
         "saturated" => (2000 + i as u64, 29),
         "scripted" => (3000 + i as u64, 41),
         "lens" => (4000 + i as u64, 53),
+        "scenes" => (5000 + i as u64, 67),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));
@@ -209,6 +215,30 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
                 depth: 0.35 + 0.3 * rng.uniform(),
             }
         };
+    }
+    if scenes {
+        // A scene no other split uses (dead leaves: curved occluding edges at every scale)
+        // under the program mix of `eval` (scripted sweeps and steps, and auto-exposure) and
+        // polynomial or Gaussian vignetting, never `eval`'s Voronoi patches or cos⁴ law: does
+        // the accuracy depend on the scene?
+        video.scene = SceneForm::Discs;
+        video.program = match i % 3 {
+            0 => ExposureProgram::Sweep {
+                stops: 0.5 + 1.0 * rng.uniform(),
+                period: 40.0 + 80.0 * rng.uniform(),
+                flicker: 0.03,
+            },
+            1 => ExposureProgram::Steps {
+                stops: 0.5 + 1.0 * rng.uniform(),
+                hold: 5 + (rng.uniform() * 20.0) as usize,
+            },
+            _ => video.program,
+        };
+        if i % 4 < 2 {
+            video.vignette = VignetteForm::Gaussian {
+                corner: 0.35 + 0.4 * rng.uniform(),
+            };
+        }
     }
     if eval {
         video.program = match i % 3 {
@@ -474,6 +504,16 @@ fn main() {
             eprintln!("{name}\n  {cam:?}\n  {video:?}");
         }
         let seq = render_ae_video(&cam, frames, &video);
+        if let (Ok(dir), Some(f)) = (std::env::var("SWEEP_DUMP"), seq.frames.first()) {
+            // The first frame as an 8-bit PNG, to look at the scene.
+            let px: Vec<u8> = f
+                .data
+                .iter()
+                .map(|&v| (f64::from(v) * 255.0 / f64::from(f.max_level)).round() as u8)
+                .collect();
+            let _ = image::GrayImage::from_raw(f.width as u32, f.height as u32, px)
+                .map(|g| g.save(format!("{dir}/{set}_{i}.png")));
+        }
         rows.push(score(
             name,
             &seq.frames,

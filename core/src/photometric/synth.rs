@@ -7,6 +7,9 @@ use super::PhotoImage;
 use super::response::{ResponseModel, interp_table};
 use super::vignette::VignetteModel;
 
+mod scenes;
+use scenes::{DeadLeaves, blocks, patches};
+
 /// SplitMix64 (Steele, Lea & Flood, OOPSLA 2014): a tiny deterministic generator.
 #[derive(Debug, Clone)]
 pub struct Rng(u64);
@@ -263,6 +266,11 @@ pub enum SceneForm {
     /// A Mondrian of axis-aligned blocks (bands of random height offsets, cells of random
     /// width per band): flat regions with straight edges and T-junctions.
     Blocks,
+    /// Dead leaves: overlapping discs of random radiance with power-law radii (4–32 units),
+    /// the occlusion model of natural scenes (G. Matheron 1968; A. B. Lee, D. Mumford,
+    /// J. Huang, "Occlusion models for natural images", IJCV 2001): curved edges at every
+    /// scale, unlike the other three.
+    Discs,
 }
 
 /// The true vignetting law.
@@ -336,39 +344,6 @@ impl Default for AeVideo {
     }
 }
 
-/// Soft Voronoi patches: cells of 40 units, one jittered site and one radiance per cell.
-fn patches(seed: u64, u: f64, v: f64) -> f64 {
-    const CELL: f64 = 40.0;
-    let hash = |i: i64, j: i64, k: u64| {
-        let mut r = Rng::new(
-            seed ^ (i as u64).wrapping_mul(0x9E37_79B9) ^ (j as u64).wrapping_mul(0x85EB_CA6B) ^ k,
-        );
-        r.uniform()
-    };
-    let (ci, cj) = ((u / CELL).floor() as i64, (v / CELL).floor() as i64);
-    let mut best = [(f64::MAX, 0.0); 2];
-    for di in -1..=1 {
-        for dj in -1..=1 {
-            let (i, j) = (ci + di, cj + dj);
-            let (px, py) = (
-                (i as f64 + hash(i, j, 1)) * CELL,
-                (j as f64 + hash(i, j, 2)) * CELL,
-            );
-            let d = ((u - px).powi(2) + (v - py).powi(2)).sqrt();
-            let q = hash(i, j, 3);
-            if d < best[0].0 {
-                best[1] = best[0];
-                best[0] = (d, q);
-            } else if d < best[1].0 {
-                best[1] = (d, q);
-            }
-        }
-    }
-    // Blend across a ~3 unit wide edge.
-    let s = ((best[1].0 - best[0].0) / 3.0).tanh();
-    best[0].1 * (0.5 + 0.5 * s) + best[1].1 * (0.5 - 0.5 * s)
-}
-
 /// Fraction of the pixels of `frames` within two levels of full scale (clipped): how
 /// saturated a rendered video is.
 pub fn clipped_fraction(frames: &[PhotoImage]) -> f64 {
@@ -377,38 +352,6 @@ pub fn clipped_fraction(frames: &[PhotoImage]) -> f64 {
         .map(|f| f.data.iter().filter(|&&v| v >= f.max_level - 2).count())
         .sum();
     clipped as f64 / frames.iter().map(|f| f.data.len()).sum::<usize>().max(1) as f64
-}
-
-/// Mondrian blocks: bands 30 units high, each with its own offset and cell width (20–50
-/// units), one radiance per cell, edges blended over ~1.5 units.
-fn blocks(seed: u64, u: f64, v: f64) -> f64 {
-    const BAND: f64 = 30.0;
-    const EDGE: f64 = 1.5;
-    let hash = |i: i64, j: i64, k: u64| {
-        let mut r = Rng::new(
-            seed ^ (i as u64).wrapping_mul(0x9E37_79B9) ^ (j as u64).wrapping_mul(0x85EB_CA6B) ^ k,
-        );
-        r.uniform()
-    };
-    // Weights of the previous and next cell at distance `a` from the start and `b` from the
-    // end of the current one.
-    let blend = |a: f64, b: f64| (0.5 - 0.5 * (a / EDGE).tanh(), 0.5 - 0.5 * (b / EDGE).tanh());
-    let row = |j: i64| {
-        let off = 60.0 * hash(j, 0, 11);
-        let w = 20.0 + 30.0 * hash(j, 0, 12);
-        let x = (u + off) / w;
-        let i = x.floor();
-        let f = (x - i) * w;
-        let i = i as i64;
-        let (wl, wr) = blend(f, w - f);
-        hash(i, j, 13) * (1.0 - wl - wr) + hash(i - 1, j, 13) * wl + hash(i + 1, j, 13) * wr
-    };
-    let y = v / BAND;
-    let j = y.floor();
-    let f = (y - j) * BAND;
-    let j = j as i64;
-    let (wu, wd) = blend(f, BAND - f);
-    row(j) * (1.0 - wu - wd) + row(j - 1) * wu + row(j + 1) * wd
 }
 
 /// A camera gliding over a plane (translation ~2·speed px/frame, slow rotation and zoom)
@@ -505,10 +448,12 @@ fn render_planes(
         .flat_map(|y| (0..cam.width).map(move |x| (x as f64, y as f64)))
         .map(|(x, y)| vig(x, y) as f32)
         .collect();
+    let leaves = DeadLeaves::new(cam.seed);
     let radiance = |u: f64, v: f64| match video.scene {
         SceneForm::Waves => tex.radiance(u, v),
         SceneForm::Patches => video.mid * (video.stops * (patches(cam.seed, u, v) - 0.5)).exp2(),
         SceneForm::Blocks => video.mid * (video.stops * (blocks(cam.seed, u, v) - 0.5)).exp2(),
+        SceneForm::Discs => video.mid * (video.stops * (leaves.at(u, v) - 0.5)).exp2(),
     };
     let mut e = E_START;
     let mut out = AeSequence {
