@@ -46,6 +46,20 @@
 //!   tuning#5 0.0013 → 0.0003), but tuning#4 (1.5 % clipped) loses (response 0.0008 → 0.0055,
 //!   exposure 0.25 → 1.02 %).
 //!
+//! `diag_discs` (the sweep's `scenes#1`, dead leaves, 15 % clipped, polynomial vignette;
+//! response / vignetting / exposure error with the common scale): the tracks with the gauge
+//! at the truth give 0.0007 / 0.0039 / 0.77 %, but with the gauge chosen from the data
+//! 0.0127 / 0.0050 / 3.14 % (α 1.30): the observations were good enough, the profile's choice
+//! was not (`gauge.rs`: its grid was ragged; with the two cheapest minima polished, 0.0010 /
+//! 0.0057 / 0.75 %, not kept for want of a held-out gain). The residual RMS is 2.75 levels against 1.97 on the waves scene (`DIAG_WAVES=1`),
+//! and ground-truth samples read bilinearly at the true positions (`DIAG_GT=1`, unweighted)
+//! are far off on this scene (0.040 / 0.040 / 10.9 % at the true gauge, against 0.0033 /
+//! 0.0032 / 1.0 % on waves): interpolating output values across a sharp edge mixes `f(a)` and
+//! `f(b)`, which is not `f` of the mixed radiance. Dropping samples whose four source pixels
+//! spread more than 0.05 (full scale 1) brings the residual RMS to 1.39 and, with the truth's
+//! gauge, 0.0002 / 0.0013 / 0.42 %; over the sweep it was not kept (see
+//! `examples/photometric_sweep.rs`).
+//!
 //! A false or imprecise re-association ties two radiances; the tuning split says the accepted
 //! ones still include such cases. Untried: checking a re-found ghost forward-backward or over
 //! a few frames before merging, or merging only the centre sample.
@@ -464,5 +478,42 @@ fn diag_saturated() {
     }
     for (label, response, video) in cases {
         run(label, response, video, vig);
+    }
+}
+
+/// The sweep's `scenes` split (dead leaves) fails where the other scenes pass; its
+/// `scenes#1` (14.7 % clipped, response 0.0119, exposures 3.0 %) rebuilt with a polynomial
+/// vignette, to tell the observations from the fit there.
+#[test]
+#[ignore]
+fn diag_discs() {
+    use crate::photometric::synth::SceneForm;
+    let video = AeVideo {
+        program: ExposureProgram::Steps {
+            stops: 1.35,
+            hold: 13,
+        },
+        scene: SceneForm::Discs,
+        mid: 0.0316,
+        stops: 5.89,
+        speed: 0.83,
+        ..AeVideo::default()
+    };
+    let response = ResponseModel::Emor {
+        c: [1.947, -0.433, -0.382, -0.221],
+    };
+    run(
+        "discs-steps",
+        response.clone(),
+        video.clone(),
+        [-0.4965, -0.048, -0.0298],
+    );
+    if std::env::var_os("DIAG_WAVES").is_some() {
+        // The same camera and program on the tuning scene.
+        let waves = AeVideo {
+            scene: crate::photometric::synth::SceneForm::Waves,
+            ..video
+        };
+        run("waves-steps", response, waves, [-0.4965, -0.048, -0.0298]);
     }
 }

@@ -37,6 +37,25 @@
 //! (11/12) and `saturated` (12/12) are unchanged, and so is the held-out `eval` split, measured
 //! once after (8/12, identical numbers: none of its choices was at the top of the grid).
 //!
+//! On a scene of many small occluding shapes (the sweep's `scenes` split: dead leaves, added
+//! to see whether the accuracy depends on the scene) the grid profile is ragged even so: on
+//! `scenes#1` (f(0.5) = 0.68) the grid costs were 0.30 / 0.33 / 0.31 / **0.18** / 0.32 /
+//! **0.20** / 0.39 / 1.00 over 0.25 … 0.92, the local steps from 0.55 settled at 0.58
+//! (response / vignette / exposure error 0.0119 / 0.0080 / 3.0 %), while the fit at the true
+//! gauge has the lower full-sample cost (`online/diag_tests.rs`, `diag_discs`). Polishing
+//! the two cheapest local minima of the grid and keeping the cheaper result
+//! ([`PROFILE_CANDIDATES`] = 2) fixes it: `scenes#1` → 0.0017 / 0.0025 / 0.76 %. Tuning
+//! splits, cases within all four targets, one candidate → two: `tuning` 11 → 11, `scripted`
+//! 12 → 12, `saturated` 12 → 12, `lens` 11 → 11, `scenes` 8 → 9 of 12, about 1 s more CPU per
+//! sequence. But on the held-out `eval` split (run once with two, once with one, same day)
+//! it stays at 8 of 12 with the same four misses, and three choices move where the profile is
+//! flat — gamma-curve cameras, which every member of the family represents exactly, so the
+//! cost cannot tell the members apart: `eval#1` (linear) exposure error 2.38 → 3.34 %,
+//! `eval#0` (γ 2.6) response 0.0007 → 0.0013, `eval#11` exposure 0.56 → 0.36 %. No held-out
+//! gain, so one candidate stays; [`polish`] and [`local_minima`] keep the experiment one
+//! constant away. A margin that a second minimum must win by would keep flat profiles on the
+//! first choice; it is untried (it would be tuned after seeing `eval`).
+//!
 //! A colour camera (`channels: rgb`) has one gauge for its three responses, because the
 //! exposures are shared: red and blue are fitted with green's exposures and vignetting held,
 //! so the gauge that suits green may put red's curve outside the span. The profile therefore
@@ -47,7 +66,7 @@
 use super::super::emor::EMOR_DIM;
 use super::super::joint::{JointConfig, JointState, Obs, refine, regauge};
 use super::channels::fit_with_shared;
-use crate::error::CoreResult;
+use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
 
 /// Gauge values `f(0.5)` profiled; EMoR responses of real cameras (DoRF) lie well inside.
@@ -67,6 +86,12 @@ const PROFILE_ITERATIONS: usize = 25;
 /// split only (see the module notes).
 const LOCAL_STEP: f64 = 0.03;
 const LOCAL_ROUNDS: usize = 2;
+
+/// Local minima of the grid profile that are polished ([`polish`]); the cheapest result wins.
+/// Each grid value is fitted from the mean-response start with a bounded number of
+/// iterations, so on noisy observations the profile can be ragged and the truth's basin need
+/// not hold the cheapest grid value; but two candidates gained nothing held out (module notes).
+const PROFILE_CANDIDATES: usize = 1;
 
 /// Highest gauge value the local steps try (below the 0.95 that `gamma_gauge` accepts).
 const LOCAL_MAX: f64 = 0.945;
@@ -158,12 +183,53 @@ pub(super) fn choose_gauge(
         costs.push(c);
         states.push(s);
     }
-    let best = (0..GRID.len())
-        .min_by(|&a, &b| costs[a].total_cmp(&costs[b]))
-        .unwrap_or(GRID.len() / 2);
+    // Polish each of the profile's best local minima, keep the cheapest (see
+    // [`PROFILE_CANDIDATES`]).
+    let candidates = local_minima(&costs, PROFILE_CANDIDATES);
+    let mut best: Option<(f64, GaugeChoice)> = None;
+    for &i in &candidates {
+        let (cost, choice) = polish(&run, &costs, i, states[i].clone())?;
+        if best.as_ref().is_none_or(|(c, _)| cost < *c) {
+            best = Some((cost, choice));
+        }
+    }
+    let (_, choice) = best.ok_or_else(|| CoreError::input("no gauge value could be fitted"))?;
+    Ok(choice)
+}
+
+/// Indices of the `n` cheapest strict local minima of a profile (ends count when lower than
+/// their one neighbour), cheapest first; the argmin alone when there is none (a flat profile).
+fn local_minima(costs: &[f64], n: usize) -> Vec<usize> {
+    let mut out: Vec<usize> = (0..costs.len())
+        .filter(|&i| {
+            (i == 0 || costs[i] < costs[i - 1]) && (i + 1 == costs.len() || costs[i] < costs[i + 1])
+        })
+        .collect();
+    out.sort_by(|&a, &b| costs[a].total_cmp(&costs[b]));
+    out.truncate(n);
+    if out.is_empty() {
+        out.extend((0..costs.len()).min_by(|&a, &b| costs[a].total_cmp(&costs[b])));
+    }
+    out
+}
+
+/// A converged profile fit at one gauge value: its cost and state.
+type Profiled = (f64, JointState);
+
+/// The grid value `GRID[best]` (cost `costs[best]`, state `state`) polished: the parabola
+/// through it and its grid neighbours, then local steps whose fits are warm-started from the
+/// choice, so their costs compare cleanly where the grid's did not (module notes). Returns
+/// the final cost with the choice.
+fn polish(
+    run: &dyn Fn(&JointState, f64) -> CoreResult<Profiled>,
+    costs: &[f64],
+    best: usize,
+    state: JointState,
+) -> CoreResult<(f64, GaugeChoice)> {
+    let mut cost = costs[best];
     let mut choice = GaugeChoice {
         gauge: GRID[best],
-        state: states.swap_remove(best),
+        state,
     };
     // Parabola through the best value and its neighbours (the grid is not evenly spaced at
     // its top end, so the general three-point vertex).
@@ -175,15 +241,14 @@ pub(super) fn choose_gauge(
         )
     {
         let (cm, sm) = run(&choice.state, m)?;
-        if cm < costs[best] {
+        if cm < cost {
+            cost = cm;
             choice = GaugeChoice {
                 gauge: m,
                 state: sm,
             };
         }
     }
-    // Local steps (module notes): fits at m and m ± LOCAL_STEP warm-started from the choice
-    // share its state, so their costs compare cleanly where the grid's did not.
     for _ in 0..LOCAL_ROUNDS {
         let m = choice.gauge;
         let Some(xs) = local_bracket(m) else {
@@ -199,14 +264,16 @@ pub(super) fn choose_gauge(
             Some(v) if lo == 1 => Some(v.clamp(xs[0], xs[2])),
             _ => None,
         };
-        let (_, best_state) = fits.swap_remove(lo);
+        let (c, best_state) = fits.swap_remove(lo);
+        cost = c;
         choice = GaugeChoice {
             gauge: xs[lo],
             state: best_state,
         };
         if let Some(v) = vertex {
             let (cv, sv) = run(&choice.state, v)?;
-            if cv < ys[lo] {
+            if cv < cost {
+                cost = cv;
                 choice = GaugeChoice {
                     gauge: v,
                     state: sv,
@@ -217,7 +284,7 @@ pub(super) fn choose_gauge(
             break; // bracketed: the vertex was the last step
         }
     }
-    Ok(choice)
+    Ok((cost, choice))
 }
 
 /// The local step's bracket around `m`, `None` at the ends of the range. Near the top the
@@ -248,7 +315,19 @@ fn parabola_vertex(x: [f64; 3], y: [f64; 3]) -> Option<f64> {
 
 #[cfg(test)]
 mod tests {
-    use super::{GRID, LOCAL_MAX, local_bracket, parabola_vertex};
+    use super::{GRID, LOCAL_MAX, local_bracket, local_minima, parabola_vertex};
+
+    /// A ragged profile (the sweep's `scenes#1` grid: the truth, 0.68, lies in the basin of
+    /// the second-cheapest grid value) yields both minima, cheapest first; a monotone one its
+    /// end; a flat one its first value.
+    #[test]
+    fn local_minima_of_a_ragged_profile() {
+        let ragged = [0.303, 0.334, 0.310, 0.182, 0.321, 0.195, 0.394, 1.002];
+        assert_eq!(local_minima(&ragged, 2), vec![3, 5]);
+        assert_eq!(local_minima(&ragged, 3), vec![3, 5, 0]);
+        assert_eq!(local_minima(&[0.5, 0.4, 0.3, 0.2], 2), vec![3]);
+        assert_eq!(local_minima(&[0.2; 4], 2), vec![0]);
+    }
 
     /// The grid's top value still gets a local step (with the upper end pulled in), and the
     /// bracket's vertex formula handles the uneven spacing; at the very top there is none.
