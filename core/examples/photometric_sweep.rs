@@ -109,6 +109,23 @@ fn emor_draw(rng: &mut Rng) -> ResponseModel {
     }
 }
 
+/// `eval`'s exposure programs: a scripted sinusoidal sweep, held random steps or (every third
+/// case) the given auto-exposure controller.
+fn eval_program_mix(i: usize, rng: &mut Rng, auto: ExposureProgram) -> ExposureProgram {
+    match i % 3 {
+        0 => ExposureProgram::Sweep {
+            stops: 0.5 + 1.0 * rng.uniform(),
+            period: 40.0 + 80.0 * rng.uniform(),
+            flicker: 0.03,
+        },
+        1 => ExposureProgram::Steps {
+            stops: 0.5 + 1.0 * rng.uniform(),
+            hold: 5 + (rng.uniform() * 20.0) as usize,
+        },
+        _ => auto,
+    }
+}
+
 fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamera, AeVideo) {
     let eval = set == "eval";
     let saturated = set == "saturated";
@@ -240,18 +257,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         // polynomial or Gaussian vignetting, never `eval`'s Voronoi patches or cos⁴ law: does
         // the accuracy depend on the scene?
         video.scene = SceneForm::Discs;
-        video.program = match i % 3 {
-            0 => ExposureProgram::Sweep {
-                stops: 0.5 + 1.0 * rng.uniform(),
-                period: 40.0 + 80.0 * rng.uniform(),
-                flicker: 0.03,
-            },
-            1 => ExposureProgram::Steps {
-                stops: 0.5 + 1.0 * rng.uniform(),
-                hold: 5 + (rng.uniform() * 20.0) as usize,
-            },
-            _ => video.program,
-        };
+        video.program = eval_program_mix(i, &mut rng, video.program);
         if i % 4 < 2 {
             video.vignette = VignetteForm::Gaussian {
                 corner: 0.35 + 0.4 * rng.uniform(),
@@ -259,18 +265,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         }
     }
     if eval {
-        video.program = match i % 3 {
-            0 => ExposureProgram::Sweep {
-                stops: 0.5 + 1.0 * rng.uniform(),
-                period: 40.0 + 80.0 * rng.uniform(),
-                flicker: 0.03,
-            },
-            1 => ExposureProgram::Steps {
-                stops: 0.5 + 1.0 * rng.uniform(),
-                hold: 5 + (rng.uniform() * 20.0) as usize,
-            },
-            _ => video.program,
-        };
+        video.program = eval_program_mix(i, &mut rng, video.program);
         if i.is_multiple_of(2) {
             video.scene = SceneForm::Patches;
         }
