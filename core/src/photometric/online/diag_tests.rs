@@ -488,6 +488,7 @@ fn diag_saturated() {
 #[ignore]
 fn diag_discs() {
     use crate::photometric::synth::SceneForm;
+    const VIGNETTE: [f64; 3] = [-0.4965, -0.048, -0.0298];
     let video = AeVideo {
         program: ExposureProgram::Steps {
             stops: 1.35,
@@ -502,18 +503,13 @@ fn diag_discs() {
     let response = ResponseModel::Emor {
         c: [1.947, -0.433, -0.382, -0.221],
     };
-    run(
-        "discs-steps",
-        response.clone(),
-        video.clone(),
-        [-0.4965, -0.048, -0.0298],
-    );
+    run("discs-steps", response.clone(), video.clone(), VIGNETTE);
     if std::env::var_os("DIAG_WAVES").is_some() {
         // The same camera and program on the tuning scene.
         let waves = AeVideo {
-            scene: crate::photometric::synth::SceneForm::Waves,
+            scene: SceneForm::Waves,
             ..video
         };
-        run("waves-steps", response, waves, [-0.4965, -0.048, -0.0298]);
+        run("waves-steps", response, waves, VIGNETTE);
     }
 }

@@ -8,12 +8,14 @@ use std::collections::HashMap;
 
 use super::Rng;
 
+/// A generator for one cell `(i, j)` of a scene and a salt.
+fn cell_rng(seed: u64, i: i64, j: i64, k: u64) -> Rng {
+    Rng::new(seed ^ (i as u64).wrapping_mul(0x9E37_79B9) ^ (j as u64).wrapping_mul(0x85EB_CA6B) ^ k)
+}
+
 /// A uniform number in (0, 1] from the seed, two integer coordinates and a salt.
 fn hash(seed: u64, i: i64, j: i64, k: u64) -> f64 {
-    let mut r = Rng::new(
-        seed ^ (i as u64).wrapping_mul(0x9E37_79B9) ^ (j as u64).wrapping_mul(0x85EB_CA6B) ^ k,
-    );
-    r.uniform()
+    cell_rng(seed, i, j, k).uniform()
 }
 
 /// Soft Voronoi patches: cells of 40 units, one jittered site and one radiance per cell.
@@ -147,9 +149,7 @@ const CELL: f64 = 32.0;
 
 /// The leaves of cell `(i, j)`.
 fn cell_leaves(seed: u64, i: i64, j: i64) -> Vec<Leaf> {
-    let mut rng = Rng::new(
-        seed ^ (i as u64).wrapping_mul(0x9E37_79B9) ^ (j as u64).wrapping_mul(0x85EB_CA6B) ^ 0xD15C,
-    );
+    let mut rng = cell_rng(seed, i, j, 0xD15C);
     let (r0, r1) = (4.0f64, 32.0f64);
     (0..DISCS_PER_CELL)
         .map(|_| {
