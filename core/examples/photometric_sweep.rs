@@ -127,7 +127,8 @@ fn eval_program_mix(i: usize, rng: &mut Rng, auto: ExposureProgram) -> ExposureP
 }
 
 fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamera, AeVideo) {
-    let eval = set == "eval";
+    // `eval2`: `eval`'s generators with fresh seeds (see the module notes).
+    let eval = set == "eval" || set == "eval2";
     let saturated = set == "saturated";
     let scripted = set == "scripted";
     let lens = set == "lens";
@@ -138,6 +139,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         "scripted" => (3000 + i as u64, 41),
         "lens" => (4000 + i as u64, 53),
         "scenes" => (5000 + i as u64, 67),
+        "eval2" => (6000 + i as u64, 79),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));

@@ -331,3 +331,34 @@ fn heldout_rgb_seeds() {
         run_rgb(seed, 160, 120, 80, None);
     }
 }
+
+/// A video that cuts to another scene halfway: no track crosses the cut, so the exposures of
+/// the two halves have no common scale and the fit refuses, naming the parts (`linked.rs`).
+#[test]
+fn a_cut_between_scenes_is_refused() {
+    let first = render_ae_video(
+        &SynthCamera::reference(160, 120, 105),
+        15,
+        &AeVideo::default(),
+    );
+    let second = render_ae_video(
+        &SynthCamera::reference(160, 120, 106),
+        15,
+        &AeVideo::default(),
+    );
+    let frames: Vec<_> = first.frames.into_iter().chain(second.frames).collect();
+    let p = OnlineParams {
+        max_features: 150,
+        ..OnlineParams::default()
+    };
+    let err = photometric_online(&frames, &p, &NoProgress)
+        .expect_err("two unrelated halves")
+        .to_string();
+    // (Frame 0 of this start has no unclipped tracked sample, so it belongs to no part.)
+    assert!(
+        err.contains("2 parts") && err.contains("-14; 15-29"),
+        "{err}"
+    );
+    // Each half alone is one part and fits.
+    assert!(photometric_online(&frames[..15], &p, &NoProgress).is_ok());
+}

@@ -37,6 +37,7 @@ mod diag_truth_tests;
 mod feature_tests;
 mod gauge;
 pub(crate) mod klt;
+mod linked;
 mod similarity;
 mod vig_model;
 
@@ -474,6 +475,7 @@ pub(crate) fn fit(
         mean_len,
         pos,
     } = seen;
+    linked::require_linked(&obs, nf)?;
     // Frame-to-frame exposure ratios under the mean response.
     let g0 = ResponseModel::default().inverse(4096);
     let lg = |o: &Obs| g0.eval(f64::from(o.value)).max(1e-6).ln();
