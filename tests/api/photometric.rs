@@ -6,7 +6,8 @@
 use std::io::Cursor;
 
 use caliper_core::photometric::synth::{
-    AeVideo, SynthCamera, render_ae_sequence, render_ae_video_rgb, render_bracket, render_flats,
+    AeVideo, SynthCamera, render_ae_sequence, render_ae_video, render_ae_video_rgb, render_bracket,
+    render_flats,
 };
 use caliper_core::photometric::{PhotoImage, ResponseModel, dso, metrics};
 use image::{DynamicImage, ImageBuffer, ImageFormat, Luma};
@@ -484,4 +485,41 @@ async fn photometric_online_fits_one_response_per_colour_channel() {
     let msg = done["error"].to_string();
     assert!(msg.contains("greyscale"), "{msg}");
     s.stop().await;
+}
+
+/// An auto-exposure upload that cuts to another scene halfway: no track crosses the cut, so the
+/// two halves' exposures have no common scale. The job fails with `invalid_input` naming the
+/// parts instead of storing exposures the frames do not determine.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn photometric_online_refuses_frames_that_no_track_connects() {
+    let first = render_ae_video(
+        &SynthCamera::reference(160, 120, 105),
+        15,
+        &AeVideo::default(),
+    );
+    let second = render_ae_video(
+        &SynthCamera::reference(160, 120, 106),
+        15,
+        &AeVideo::default(),
+    );
+    let files: Vec<(String, Vec<u8>)> = first
+        .frames
+        .iter()
+        .chain(&second.frames)
+        .enumerate()
+        .map(|(i, f)| (format!("f{i:03}.png"), png(f)))
+        .collect();
+    let s = start().await;
+    let (st, ds, _) = s
+        .upload(files.iter().map(|(n, b)| (n.as_str(), b.clone())).collect())
+        .await;
+    assert_eq!(st, 201, "{ds}");
+    let id = s
+        .job(json!({"kind": "photometric_online", "dataset": ds["id"], "device": "cut-cam", "sensor": "cam0", "params": {"options": {"max_features": 150}}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "failed", "{done}");
+    assert_eq!(done["error"]["code"], "invalid_input", "{done}");
+    let msg = done["error"]["message"].as_str().unwrap_or_default();
+    assert!(msg.contains("2 parts") && msg.contains("15-29"), "{msg}");
 }
