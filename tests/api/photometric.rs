@@ -6,7 +6,7 @@
 use std::io::Cursor;
 
 use caliper_core::photometric::synth::{
-    AeVideo, SynthCamera, render_ae_sequence, render_ae_video, render_ae_video_rgb, render_bracket,
+    AeVideo, SynthCamera, render_ae_cut, render_ae_sequence, render_ae_video_rgb, render_bracket,
     render_flats,
 };
 use caliper_core::photometric::{PhotoImage, ResponseModel, dso, metrics};
@@ -33,6 +33,15 @@ fn png(img: &PhotoImage) -> Vec<u8> {
     let mut out = Cursor::new(Vec::new());
     dynimg.write_to(&mut out, ImageFormat::Png).expect("png");
     out.into_inner()
+}
+
+/// Uploads named frames as one dataset; its id.
+async fn upload_frames(s: &TestServer, files: &[(String, Vec<u8>)]) -> Value {
+    let (st, ds, _) = s
+        .upload(files.iter().map(|(n, b)| (n.as_str(), b.clone())).collect())
+        .await;
+    assert_eq!(st, 201, "{ds}");
+    ds["id"].clone()
 }
 
 /// RMSE between two inverse responses sampled at 256 levels, both on [0, 1].
@@ -375,12 +384,9 @@ async fn photometric_online_fits_one_response_per_colour_channel() {
         .map(|(i, f)| (format!("f{i:03}.png"), png_rgb(f)))
         .collect();
     let s = start().await;
-    let (st, ds, _) = s
-        .upload(files.iter().map(|(n, b)| (n.as_str(), b.clone())).collect())
-        .await;
-    assert_eq!(st, 201, "{ds}");
+    let ds = upload_frames(&s, &files).await;
     let id = s
-        .job(json!({"kind": "photometric_online", "dataset": ds["id"], "device": "rgb-cam", "sensor": "cam0", "params": {"options": {"channels": "rgb", "gamma_gauge": null, "max_features": 150}}}))
+        .job(json!({"kind": "photometric_online", "dataset": ds, "device": "rgb-cam", "sensor": "cam0", "params": {"options": {"channels": "rgb", "gamma_gauge": null, "max_features": 150}}}))
         .await;
     let done = s.wait_terminal(&id).await;
     assert_eq!(done["status"], "succeeded", "{done}");
@@ -492,30 +498,15 @@ async fn photometric_online_fits_one_response_per_colour_channel() {
 /// parts instead of storing exposures the frames do not determine.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn photometric_online_refuses_frames_that_no_track_connects() {
-    let first = render_ae_video(
-        &SynthCamera::reference(160, 120, 105),
-        15,
-        &AeVideo::default(),
-    );
-    let second = render_ae_video(
-        &SynthCamera::reference(160, 120, 106),
-        15,
-        &AeVideo::default(),
-    );
-    let files: Vec<(String, Vec<u8>)> = first
-        .frames
+    let files: Vec<(String, Vec<u8>)> = render_ae_cut(160, 120, [105, 106], 15)
         .iter()
-        .chain(&second.frames)
         .enumerate()
         .map(|(i, f)| (format!("f{i:03}.png"), png(f)))
         .collect();
     let s = start().await;
-    let (st, ds, _) = s
-        .upload(files.iter().map(|(n, b)| (n.as_str(), b.clone())).collect())
-        .await;
-    assert_eq!(st, 201, "{ds}");
+    let ds = upload_frames(&s, &files).await;
     let id = s
-        .job(json!({"kind": "photometric_online", "dataset": ds["id"], "device": "cut-cam", "sensor": "cam0", "params": {"options": {"max_features": 150}}}))
+        .job(json!({"kind": "photometric_online", "dataset": ds, "device": "cut-cam", "sensor": "cam0", "params": {"options": {"max_features": 150}}}))
         .await;
     let done = s.wait_terminal(&id).await;
     assert_eq!(done["status"], "failed", "{done}");

@@ -354,6 +354,23 @@ pub fn clipped_fraction(frames: &[PhotoImage]) -> f64 {
     clipped as f64 / frames.iter().map(|f| f.data.len()).sum::<usize>().max(1) as f64
 }
 
+/// A video that cuts between two scenes: `frames` frames of [`SynthCamera::reference`] with
+/// `seeds[0]`, then as many with `seeds[1]` (no scene point crosses the cut), default program.
+pub fn render_ae_cut(
+    width: usize,
+    height: usize,
+    seeds: [u64; 2],
+    frames: usize,
+) -> Vec<PhotoImage> {
+    seeds
+        .iter()
+        .flat_map(|&seed| {
+            let cam = SynthCamera::reference(width, height, seed);
+            render_ae_video(&cam, frames, &AeVideo::default()).frames
+        })
+        .collect()
+}
+
 /// A camera gliding over a plane (translation ~2·speed px/frame, slow rotation and zoom)
 /// under the given exposure program, scene and vignetting law.
 pub fn render_ae_video(cam: &SynthCamera, frames: usize, video: &AeVideo) -> AeSequence {

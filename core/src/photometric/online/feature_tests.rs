@@ -7,7 +7,9 @@
 
 use super::{CenterMode, Channels, OnlineParams, photometric_online, photometric_online_rgb};
 use crate::photometric::metrics::{exposure_error_pct, gamma_align, vignette_rmse};
-use crate::photometric::synth::{AeVideo, SynthCamera, render_ae_video, render_ae_video_rgb};
+use crate::photometric::synth::{
+    AeVideo, SynthCamera, render_ae_cut, render_ae_video, render_ae_video_rgb,
+};
 use crate::photometric::{InverseResponse, OnlineResult, ResponseModel};
 
 struct NoProgress;
@@ -336,17 +338,7 @@ fn heldout_rgb_seeds() {
 /// the two halves have no common scale and the fit refuses, naming the parts (`linked.rs`).
 #[test]
 fn a_cut_between_scenes_is_refused() {
-    let first = render_ae_video(
-        &SynthCamera::reference(160, 120, 105),
-        15,
-        &AeVideo::default(),
-    );
-    let second = render_ae_video(
-        &SynthCamera::reference(160, 120, 106),
-        15,
-        &AeVideo::default(),
-    );
-    let frames: Vec<_> = first.frames.into_iter().chain(second.frames).collect();
+    let frames = render_ae_cut(160, 120, [105, 106], 15);
     let p = OnlineParams {
         max_features: 150,
         ..OnlineParams::default()
