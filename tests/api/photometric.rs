@@ -458,7 +458,7 @@ async fn photometric_online_fits_one_response_per_colour_channel() {
         let r = s
             .client
             .post(s.url("/v1/jobs"))
-            .json(&json!({"kind": "photometric_online", "dataset": ds["id"], "params": {"options": options}}))
+            .json(&json!({"kind": "photometric_online", "dataset": ds, "params": {"options": options}}))
             .send()
             .await
             .expect("post");
