@@ -1,3 +1,6 @@
+//! Why over 600 lines: about a hundred of them are the measured record of each split and of
+//! each change tried against it, kept next to the generators that produced the numbers.
+//!
 //! Accuracy sweep of the online photometric calibration (issue 16): synthetic auto-exposure
 //! videos over many camera responses (random monotone EMoR draws, gamma curves 1.0–2.6),
 //! scenes, vignettes and exposure programs, scored like the shared `score_ref.json` (inverse
