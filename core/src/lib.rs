@@ -23,6 +23,7 @@ mod stats;
 pub mod synth;
 #[cfg(test)]
 mod test_env;
+mod union_find;
 #[cfg(feature = "video")]
 pub mod video;
 

@@ -513,4 +513,5 @@ async fn photometric_online_refuses_frames_that_no_track_connects() {
     assert_eq!(done["error"]["code"], "invalid_input", "{done}");
     let msg = done["error"]["message"].as_str().unwrap_or_default();
     assert!(msg.contains("2 parts") && msg.contains("15-29"), "{msg}");
+    s.stop().await;
 }

@@ -13,6 +13,7 @@ use std::collections::HashMap;
 use rayon::prelude::*;
 
 use crate::io::Gray;
+use crate::union_find::root;
 
 /// Threshold levels.
 const LEVELS: usize = 9;
@@ -122,13 +123,6 @@ fn components(img: &Gray, t: u8) -> Option<Vec<Blob>> {
     // Runs `[x0, x1)` of row `y`, each with its union-find node (same index).
     let mut runs: Vec<(usize, usize, usize)> = Vec::new();
     let mut parent: Vec<usize> = Vec::new();
-    fn root(parent: &mut [usize], mut a: usize) -> usize {
-        while parent[a] != a {
-            parent[a] = parent[parent[a]];
-            a = parent[a];
-        }
-        a
-    }
     let mut prev = 0..0;
     for y in 0..h {
         let row = &img.data[y * w..(y + 1) * w];

@@ -51,8 +51,9 @@
 //! at the truth give 0.0007 / 0.0039 / 0.77 %, but with the gauge chosen from the data
 //! 0.0127 / 0.0050 / 3.14 % (α 1.30): the observations were good enough, the profile's choice
 //! was not (`gauge.rs`: its grid was ragged; with the two cheapest minima polished, 0.0010 /
-//! 0.0057 / 0.75 %, not kept for want of a held-out gain). The residual RMS is 2.75 levels against 1.97 on the waves scene (`DIAG_WAVES=1`),
-//! and ground-truth samples read bilinearly at the true positions (`DIAG_GT=1`, unweighted)
+//! 0.0057 / 0.75 %, not kept for want of a held-out gain). The residual RMS is 2.75 levels
+//! against 1.97 on the waves scene (`DIAG_WAVES=1`), and ground-truth samples read
+//! bilinearly at the true positions (`DIAG_GT=1`, unweighted)
 //! are far off on this scene (0.040 / 0.040 / 10.9 % at the true gauge, against 0.0033 /
 //! 0.0032 / 1.0 % on waves): interpolating output values across a sharp edge mixes `f(a)` and
 //! `f(b)`, which is not `f` of the mixed radiance. Dropping samples whose four source pixels

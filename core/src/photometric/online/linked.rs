@@ -18,6 +18,7 @@
 
 use super::super::joint::Obs;
 use crate::error::{CoreError, CoreResult};
+use crate::union_find::root;
 
 /// Connected parts of the frame graph (frames joined by a scene point measured in both), each
 /// as its sorted frame indices; frames without any measured sample are parts of their own.
@@ -49,15 +50,6 @@ pub(super) fn frame_parts(obs: &[Obs], frames: usize) -> Vec<Vec<usize>> {
         parts[index[r]].push(f);
     }
     parts
-}
-
-/// Union-find root with path halving.
-fn root(parent: &mut [usize], mut i: usize) -> usize {
-    while parent[i] != i {
-        parent[i] = parent[parent[i]];
-        i = parent[i];
-    }
-    i
 }
 
 /// `Ok` when every frame with a measured sample is tied to every other such frame; otherwise

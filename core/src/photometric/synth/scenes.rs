@@ -1,7 +1,7 @@
 //! Procedural scenes of the synthetic auto-exposure video: radiance patterns in `[0, 1]` over
 //! the plane the camera glides over, each a function of a seed and a point (the dead leaves
-//! cache the discs of each cell they have drawn) so that any
-//! frame can be rendered without storing the plane.
+//! cache the discs of each cell they have drawn) so that any frame can be rendered without
+//! storing the plane.
 
 use std::cell::RefCell;
 use std::collections::HashMap;
