@@ -7,7 +7,7 @@
 //! editing images.
 //!
 //! ```text
-//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|time [--only TEXT] [-v]
+//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|levin|levin-synth|time [--only TEXT] [-v]
 //! cargo run -p caliper-core --release --example blind_eval -- size|size-tremor|size-texture|size-eval|starts
 //! ```
 //!
@@ -33,6 +33,10 @@
 //! * **EVAL**: brick, coins, rocket, grass, gravel, hubble_deep_field, BoofCV `1/5/9/13/17/21`;
 //!   2 kernels each from [`shake_3d`] (seeds from 1 000 001) and 2 from [`shake_impulsive`], a
 //!   different trajectory model. EVAL is for reporting only: never tune on it.
+//! * **LEVIN** (`levin`, `levin-synth`): Levin et al. 2009's real camera-shake set (four
+//!   poster photos × eight measured kernels, 13–27 px), read from `CALIPER_LEVIN_DIR` (not
+//!   shipped; see `common/levin.rs`): the captured blurred images, or the sharp photos blurred
+//!   here with the measured kernels and σ = 0.01. The benchmark issue 16 quotes; for reporting.
 //!
 //! Kernel extents are stratified over 11–41 px (four strata per image). Blur is a 'valid'
 //! convolution, then N(0, 0.01²) noise, clipping and 8-bit quantisation.
@@ -87,6 +91,8 @@ mod rng;
 use rng::Rng;
 #[path = "common/blind_peer.rs"]
 mod blind_peer;
+#[path = "common/levin.rs"]
+mod levin;
 #[path = "common/textures.rs"]
 mod textures;
 
@@ -381,6 +387,11 @@ enum Split {
     /// ([`textures`]) and the unused skimage photos `text`, `moon`, `clock`.
     Texture,
     Eval,
+    /// Levin et al. 2009's real camera-shake set from `CALIPER_LEVIN_DIR` (never tuned on):
+    /// the captured blurred images ([`levin`]).
+    Levin,
+    /// The same pairs, blurred here with the measured kernels and σ = 0.01.
+    LevinSynth,
 }
 
 fn sources(root: &Path, split: Split) -> Vec<(String, PathBuf)> {
@@ -427,18 +438,45 @@ fn sources(root: &Path, split: Split) -> Vec<(String, PathBuf)> {
                 ));
             }
         }
+        Split::Levin | Split::LevinSynth => {}
     }
     out
 }
 
+/// Levin et al.'s pairs as cases (see `common/levin.rs`); none when the folder is not set.
+fn levin_cases(split: Split) -> Vec<Case> {
+    let Ok(dir) = std::env::var("CALIPER_LEVIN_DIR") else {
+        eprintln!("CALIPER_LEVIN_DIR is not set: no Levin cases");
+        return Vec::new();
+    };
+    match levin::cases(Path::new(&dir), split == Split::LevinSynth) {
+        Ok(v) => v
+            .into_iter()
+            .map(|c| Case {
+                name: c.name,
+                sharp: Plane::new(c.side, c.side, c.sharp).expect("plane"),
+                blurred: Plane::new(c.side, c.side, c.blurred).expect("plane"),
+                psf: Psf::from_weights(c.kernel.0, c.kernel.1, c.kernel.2).expect("psf"),
+            })
+            .collect(),
+        Err(e) => {
+            eprintln!("Levin set: {e}");
+            Vec::new()
+        }
+    }
+}
+
 fn cases(root: &Path, split: Split) -> Vec<Case> {
+    if matches!(split, Split::Levin | Split::LevinSynth) {
+        return levin_cases(split);
+    }
     let mut out = Vec::new();
     let saturate = std::env::var("BLIND_SAT").ok();
     let base = match split {
         Split::Tune => 1u64,
         Split::Tremor => 5_000_001,
         Split::Texture => 7_000_001,
-        Split::Eval => 1_000_001,
+        Split::Eval | Split::Levin | Split::LevinSynth => 1_000_001,
     };
     let mut srcs: Vec<(String, Option<textures::Source>)> = sources(root, split)
         .into_iter()
@@ -986,6 +1024,8 @@ fn main() {
         Some("tremor") => run(Split::Tremor, only, verbose),
         Some("texture") => run(Split::Texture, only, verbose),
         Some("eval") => run(Split::Eval, only, verbose),
+        Some("levin") => run(Split::Levin, only, verbose),
+        Some("levin-synth") => run(Split::LevinSynth, only, verbose),
         Some("time") => time(),
         // `size`: blur-extent estimate vs truth; `starts`: several windows per TUNE case with
         // their true ratios and blind selection criteria (for offline analysis).
@@ -995,7 +1035,7 @@ fn main() {
         Some("size-texture") => sizes(Split::Texture),
         Some("size-eval") => sizes(Split::Eval),
         _ => eprintln!(
-            "usage: blind_eval tune|tremor|texture|eval|time|size|size-tremor|size-texture|size-eval|starts [--only TEXT] [-v]"
+            "usage: blind_eval tune|tremor|texture|eval|levin|levin-synth|time|size|size-tremor|size-texture|size-eval|starts [--only TEXT] [-v]"
         ),
     }
 }
