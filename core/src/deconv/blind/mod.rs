@@ -77,7 +77,11 @@
 //! * Levin et al. 2011's variational latent (posterior mean, variance charged to `‖k‖²`) in
 //!   place of the L0 cartoon: blobs, 0–2 of TUNE's 4 `camera` cases against 4; a non-negative
 //!   kernel solve (projected Barzilai–Borwein) at the coarse levels: TUNE 23 and TREMOR 19 →
-//!   20 of 44, but EVAL 22 → 20 of 48 (`core/benches/deconv_set.md` has both).
+//!   20 of 44, but EVAL 22 → 20 of 48 (`core/benches/deconv_set.md` has both);
+//! * on Levin et al.'s real set (`blind_eval -- levin`, 18 of 32): 5 % cleaning thresholds
+//!   (`levin-synth` 23 → 29 of 32 but TUNE 23 → 12), a weak-prior polish step, Pan et al.
+//!   2016's dark channel with its nested splitting, deferred or final-only lower cleaning —
+//!   numbers in `core/benches/deconv_set.md`.
 //!
 //! **The estimator is biased, not lost.** Started from the true kernel
 //! ([`estimate_kernel_from`], `BLIND_FIXED=pyramid|finest` in the harness, window 1.3 × the
