@@ -8,9 +8,9 @@
 //! `gt/im{1..4}.png` (sharp), `gt/kernel{1..8}.png` (the kernels, scaled to a maximum of 255)
 //! and `im{i}_kernel{j}_img.png` (the blurred captures). Both modes score the same 32 pairs:
 //!
-//! * `levin`: the captured blurred images themselves (real blur, real noise, and the small
-//!   misalignment between the capture and the sharp photo that the scoring's shift search
-//!   absorbs);
+//! * `levin`: the captured blurred images themselves (real blur, real noise, and a shift of a
+//!   few pixels between each capture and its sharp photo, removed from the reference in
+//!   [`cases`]);
 //! * `levin-synth`: the sharp photo blurred here with the measured kernel ('same' convolution,
 //!   mirrored borders), N(0, 0.01²) noise, clipping and 8-bit quantisation, as the issue's
 //!   report describes its run.
@@ -148,8 +148,10 @@ pub fn cases(dir: &Path, synth: bool) -> Result<Vec<LevinCase>, String> {
     let (w1, _, sharp1) = grey(&dir.join("gt/im1.png"))?;
     for (j, k) in kernels.iter_mut().enumerate() {
         let (_, _, cap) = grey(&dir.join(format!("im1_kernel{}_img.png", j + 1)))?;
-        if cap.len() != w1 * w1 || sharp1.len() != w1 * w1 {
-            return Err("im1 and its captures must be square and of one size".into());
+        if w1 < 64 || cap.len() != w1 * w1 || sharp1.len() != w1 * w1 {
+            return Err(
+                "im1 and its captures must be square, of one size and at least 64 px".into(),
+            );
         }
         let turned = rotated(k);
         if residual(w1, &convolve(w1, &sharp1, &turned), &cap).0
@@ -161,8 +163,10 @@ pub fn cases(dir: &Path, synth: bool) -> Result<Vec<LevinCase>, String> {
     let mut out = Vec::new();
     for i in 1..=4 {
         let (w, h, sharp) = grey(&dir.join(format!("gt/im{i}.png")))?;
-        if w != h {
-            return Err(format!("im{i}.png is {w}×{h}, not square"));
+        if w != h || w < 64 {
+            return Err(format!(
+                "im{i}.png is {w}×{h}: square and at least 64 px expected"
+            ));
         }
         for (j, k) in kernels.iter().enumerate() {
             let (blurred, reference) = if synth {
