@@ -171,3 +171,34 @@ async fn delete_is_refused_while_a_job_uses_the_dataset() {
     );
     s.stop().await;
 }
+
+/// The optional `kind` form field: a matching kind is taken, a contradicting one, an unknown
+/// one or a repeated one is refused before anything is stored.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_kind_field_is_checked_against_the_content() {
+    use reqwest::multipart::{Form, Part};
+    let s = start().await;
+    let img = png(&sharp_image(32, 24));
+    let send = |kinds: &'static [&'static str]| {
+        let mut form = Form::new().part("file", Part::bytes(img.clone()).file_name("a.png"));
+        for k in kinds {
+            form = form.text("kind", *k);
+        }
+        s.client.post(s.url("/v1/datasets")).multipart(form).send()
+    };
+    let r = send(&["images"]).await.expect("request");
+    assert_eq!(r.status().as_u16(), 201);
+    for (kinds, code) in [
+        (&["video"][..], "mixed_dataset"),
+        (&["photos"][..], "invalid_body"),
+        (&["images", "images"][..], "invalid_body"),
+    ] {
+        let r = send(kinds).await.expect("request");
+        assert_eq!(r.status().as_u16(), 422, "{kinds:?}");
+        let p: serde_json::Value = r.json().await.expect("problem");
+        assert_eq!(p["code"], code, "{kinds:?}: {p}");
+    }
+    let (_, list) = s.get_json("/v1/datasets").await;
+    assert_eq!(list["items"].as_array().map(Vec::len), Some(1), "{list}");
+    s.stop().await;
+}

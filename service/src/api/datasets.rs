@@ -32,8 +32,8 @@ pub struct UploadForm {
     #[schema(value_type = Vec<String>, format = Binary, min_items = 1)]
     file: Vec<Vec<u8>>,
     /// Optional: the expected dataset kind (`images`, `imu_log`, `video`); the content decides,
-    /// and a mismatch is refused.
-    #[schema(value_type = Option<crate::store::DatasetKind>)]
+    /// and a mismatch is refused. Not nullable: a form field is text or absent, never null.
+    #[schema(value_type = crate::store::DatasetKind, required = false)]
     kind: Option<String>,
 }
 

@@ -65,6 +65,13 @@ pub async fn ingest(
         let field_name = field.name().unwrap_or("").to_string();
         let Some(file_name) = field.file_name().map(sanitize_name) else {
             if field_name == "kind" {
+                if kind_hint.is_some() {
+                    return Err(ApiError::new(
+                        "invalid_body",
+                        "`kind` given more than once: send one value",
+                    )
+                    .with_field("kind"));
+                }
                 let text = field.text().await.map_err(multipart_error)?;
                 kind_hint = Some(DatasetKind::parse(text.trim()).ok_or_else(|| {
                     ApiError::new(
