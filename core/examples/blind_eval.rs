@@ -7,7 +7,7 @@
 //! editing images.
 //!
 //! ```text
-//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|levin|levin-synth|time [--only TEXT] [-v]
+//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|eval2|levin|levin-synth|time [--only TEXT] [-v]
 //! cargo run -p caliper-core --release --example blind_eval -- size|size-tremor|size-texture|size-eval|starts
 //! ```
 //!
@@ -33,6 +33,8 @@
 //! * **EVAL**: brick, coins, rocket, grass, gravel, hubble_deep_field, BoofCV `1/5/9/13/17/21`;
 //!   2 kernels each from [`shake_3d`] (seeds from 1 000 001) and 2 from [`shake_impulsive`], a
 //!   different trajectory model. EVAL is for reporting only: never tune on it.
+//! * **EVAL2**: EVAL's photos and generators, seeds from 11 000 001 (other crops, kernels and
+//!   noise): run once to confirm a choice made after seeing EVAL.
 //! * **LEVIN** (`levin`, `levin-synth`): Levin et al. 2009's real camera-shake set (four
 //!   poster photos × eight measured kernels, 13–27 px), read from `CALIPER_LEVIN_DIR` (not
 //!   shipped; see `common/levin.rs`): the captured blurred images, or the sharp photos blurred
@@ -50,7 +52,8 @@
 //! `time` measures one 255² case and one ~1 Mpx image (1155×866, 31 px shake kernel).
 //!
 //! Environment: `CALIPER_BLIND_DATA` (data root), `BLIND_KS` / `BLIND_ITERS` (override
-//! `kernel_size` / `iterations_per_level`, for experiments), `BLIND_ORACLE=F` (window = F × the
+//! `kernel_size` / `iterations_per_level`, for experiments), `BLIND_THRESHOLD` (override
+//! `kernel_threshold`), `BLIND_ORACLE=F` (window = F × the
 //! true kernel side: the ceiling of size estimation), `BLIND_NOSAT=1` (every pixel linear in
 //! both solves: `saturation: null`), `BLIND_SAT=1` (over-exposed variant of
 //! the split: 1–6 % of each scene above the white level, see [`overexpose`]), `BLIND_SAT=2`
@@ -387,6 +390,9 @@ enum Split {
     /// ([`textures`]) and the unused skimage photos `text`, `moon`, `clock`.
     Texture,
     Eval,
+    /// EVAL's photos and kernel generators with other seeds: a second held-out split, for
+    /// confirming a choice made after EVAL was seen (never tuned on).
+    Eval2,
     /// Levin et al. 2009's real camera-shake set from `CALIPER_LEVIN_DIR` (never tuned on):
     /// the captured blurred images ([`levin`]).
     Levin,
@@ -420,7 +426,7 @@ fn sources(root: &Path, split: Split) -> Vec<(String, PathBuf)> {
                 out.push((n.to_string(), sk.join(format!("{n}.png"))));
             }
         }
-        Split::Eval => {
+        Split::Eval | Split::Eval2 => {
             for n in [
                 "brick",
                 "coins",
@@ -477,6 +483,7 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
         Split::Tremor => 5_000_001,
         Split::Texture => 7_000_001,
         Split::Eval | Split::Levin | Split::LevinSynth => 1_000_001,
+        Split::Eval2 => 11_000_001,
     };
     let mut srcs: Vec<(String, Option<textures::Source>)> = sources(root, split)
         .into_iter()
@@ -509,7 +516,7 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
             let seed = base + 10 * si as u64 + j;
             let mut rng = Rng::new(seed);
             let extent = 11.0 + 30.0 * (j as f64 + rng.uniform()) / 4.0;
-            let (gen_name, psf) = if split == Split::Eval && j % 2 == 1 {
+            let (gen_name, psf) = if matches!(split, Split::Eval | Split::Eval2) && j % 2 == 1 {
                 ("imp", shake_impulsive(&mut rng, extent))
             } else if split == Split::Tremor {
                 ("trem", shake_tremor(&mut rng, extent))
@@ -626,6 +633,12 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         .and_then(|v| v.parse().ok())
     {
         params.iterations_per_level = k;
+    }
+    if let Some(t) = std::env::var("BLIND_THRESHOLD")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        params.kernel_threshold = t;
     }
     let fixed = match std::env::var("BLIND_FIXED").as_deref() {
         Ok("finest") => Some(KernelStart::Finest),
@@ -1024,6 +1037,7 @@ fn main() {
         Some("tremor") => run(Split::Tremor, only, verbose),
         Some("texture") => run(Split::Texture, only, verbose),
         Some("eval") => run(Split::Eval, only, verbose),
+        Some("eval2") => run(Split::Eval2, only, verbose),
         Some("levin") => run(Split::Levin, only, verbose),
         Some("levin-synth") => run(Split::LevinSynth, only, verbose),
         Some("time") => time(),
@@ -1035,7 +1049,7 @@ fn main() {
         Some("size-texture") => sizes(Split::Texture),
         Some("size-eval") => sizes(Split::Eval),
         _ => eprintln!(
-            "usage: blind_eval tune|tremor|texture|eval|levin|levin-synth|time|size|size-tremor|size-texture|size-eval|starts [--only TEXT] [-v]"
+            "usage: blind_eval tune|tremor|texture|eval|eval2|levin|levin-synth|time|size|size-tremor|size-texture|size-eval|starts [--only TEXT] [-v]"
         ),
     }
 }

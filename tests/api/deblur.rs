@@ -154,6 +154,15 @@ async fn deblur_refuses_inconsistent_params_before_queueing() {
             json!({"method": "blind", "saturation": 1.5}),
             Some("params.saturation"),
         ),
+        // A kernel threshold out of range, and one for a method that estimates no kernel.
+        (
+            json!({"method": "blind", "kernel_threshold": 0.9}),
+            Some("params.kernel_threshold"),
+        ),
+        (
+            json!({"method": "tv", "psf": {"width": 1, "height": 1, "data": [1]}, "kernel_threshold": 0.05}),
+            Some("params.kernel_threshold"),
+        ),
         // Unknown method.
         (json!({"method": "magic"}), None),
     ];

@@ -60,6 +60,11 @@ pub struct DeblurParams {
     /// estimated from the image, 27 px to a third of the shorter side; for `blind_rl`, and for
     /// `blind` when no extent is found: 31 or a third of the shorter side).
     pub kernel_size: Option<usize>,
+    /// For `blind` only: kernel entries below this fraction of the kernel's maximum are dropped
+    /// after every kernel step (0.01–0.5, default 0.1). 0.05 keeps the faint strokes of long
+    /// camera-shake paths that end in a bright dwell point, at the cost of more noise in the
+    /// kernel; on chessboards and repetitive textures it is worse (README, limits).
+    pub kernel_threshold: Option<f64>,
     /// Gyro trace, exposure and intrinsics for `gyro`.
     pub gyro: Option<GyroPsfParams>,
     /// For `gyro`: `[nx, ny]` cells, each restored with the kernel drawn at its centre and
@@ -84,6 +89,7 @@ impl Default for DeblurParams {
             tv_lambda: None,
             saturation: Some(super::tv::DEFAULT_SATURATION),
             kernel_size: None,
+            kernel_threshold: None,
             gyro: None,
             gyro_grid: None,
             frames: None,
@@ -189,6 +195,12 @@ impl DeblurParams {
                 ));
             }
         }
+        if self.kernel_threshold.is_some() && self.method != Blind {
+            return Err(CoreError::param(
+                "kernel_threshold",
+                "only used by method blind",
+            ));
+        }
         if let Some(v) = self.nsr
             && !(v.is_finite() && v >= 0.0)
         {
@@ -219,6 +231,9 @@ impl DeblurParams {
     fn blind_params(&self) -> BlindParams {
         BlindParams {
             kernel_size: self.kernel_size,
+            kernel_threshold: self
+                .kernel_threshold
+                .unwrap_or(super::DEFAULT_KERNEL_THRESHOLD),
             final_tv: TvParams {
                 lambda: self.tv_lambda,
                 iterations: self.iterations.unwrap_or(TvParams::default().iterations),

@@ -123,6 +123,34 @@ fn blind_recovers_motion_kernel() {
     assert!(ratio <= 3.0, "error ratio {ratio:.2}");
 }
 
+/// `kernel_threshold` is the cleaning every level applies: no entry of the estimate is below
+/// that fraction of its peak, and a lower threshold keeps more entries.
+#[test]
+fn blind_kernel_threshold_sets_the_cleaning() {
+    let sharp = shapes(160, 160, 9);
+    let truth = Psf::motion(11.0, 30.0).expect("motion");
+    let blurred = add_noise(&blur_reflect(&sharp, &truth), 0.01, 17);
+    let support = |t: f64| {
+        let params = BlindParams {
+            kernel_size: Some(17),
+            kernel_threshold: t,
+            ..BlindParams::default()
+        };
+        let k = estimate_kernel(&blurred, &params, &NoProgress).expect("kernel");
+        let peak = k.data.iter().copied().fold(0.0, f64::max);
+        // Each level's cleaning drops below `t·max`, then normalises: the ratio survives.
+        assert!(
+            k.data
+                .iter()
+                .all(|&v| v == 0.0 || v >= t * peak * (1.0 - 1e-9)),
+            "an entry below {t} of the peak survived"
+        );
+        k.data.iter().filter(|&&v| v > 0.0).count()
+    };
+    let (low, high) = (support(0.02), support(0.4));
+    assert!(low > high, "support at 2 %: {low}, at 40 %: {high}");
+}
+
 /// The fixed-point diagnostics: from the truth, on a scene with edges in every direction, both
 /// the finest level and the whole pyramid stay at the truth; a start that is not square is
 /// refused.
@@ -401,6 +429,32 @@ fn deblur_params_serde_and_validation() {
         }),
         "kernel_size"
     );
+    for bad in [0.0, 0.005, 0.6, f64::NAN, f64::INFINITY] {
+        assert_eq!(
+            field(DeblurParams {
+                method: DeblurMethod::Blind,
+                kernel_threshold: Some(bad),
+                ..DeblurParams::default()
+            }),
+            "kernel_threshold",
+            "{bad}"
+        );
+    }
+    // Only `blind` cleans an estimated kernel.
+    assert_eq!(
+        field(DeblurParams {
+            kernel_threshold: Some(0.05),
+            ..with_psf.clone()
+        }),
+        "kernel_threshold"
+    );
+    DeblurParams {
+        method: DeblurMethod::Blind,
+        kernel_threshold: Some(0.05),
+        ..DeblurParams::default()
+    }
+    .validate()
+    .expect("blind with a threshold");
     assert!(serde_json::from_str::<DeblurParams>(r#"{"methd": "tv"}"#).is_err());
 }
 

@@ -302,6 +302,10 @@ pub struct DeblurArgs {
     /// Kernel side for the blind methods (odd).
     #[arg(long)]
     pub kernel_size: Option<usize>,
+    /// For `--method blind`: kernel entries below this fraction of the peak are dropped
+    /// (0.01–0.5) [default: 0.1].
+    #[arg(long)]
+    pub kernel_threshold: Option<f64>,
     /// Level (0.5–1) at and above which pixels count as clipped highlights, or `off`
     /// [default: 0.99].
     #[arg(long, value_parser = parse_saturation)]
@@ -413,6 +417,7 @@ fn params_from_flags(a: &DeblurArgs) -> Result<Value, RunError> {
         ("nsr", a.nsr.map(|v| json!(v))),
         ("tv_lambda", a.tv_lambda.map(|v| json!(v))),
         ("kernel_size", a.kernel_size.map(|v| json!(v))),
+        ("kernel_threshold", a.kernel_threshold.map(|v| json!(v))),
         ("saturation", a.saturation.clone()),
         ("gyro_grid", a.gyro_grid.map(|v| json!(v))),
     ] {
