@@ -72,9 +72,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use caliper_core::deconv::{
-    BlindParams, DEFAULT_SATURATION, KernelStart, Plane, Psf, TvParams, blind_deconv,
-    error_ratio_aligned, estimate_blur_extent, estimate_kernel_from, estimate_kernel_trace,
-    gradient_autocorrelation, psnr, tv_deconv,
+    BlindParams, DEFAULT_KERNEL_THRESHOLD, DEFAULT_SATURATION, KernelStart, Plane, Psf, TvParams,
+    blind_deconv, error_ratio_aligned, estimate_blur_extent, estimate_kernel_from,
+    estimate_kernel_trace, gradient_autocorrelation, psnr, tv_deconv,
 };
 use caliper_core::io::{ImageLimits, decode_gray8};
 use caliper_core::progress::NoProgress;
@@ -638,7 +638,7 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         .ok()
         .and_then(|v| v.parse().ok())
     {
-        params.kernel_threshold = t;
+        params.kernel_threshold = Some(t);
     }
     let fixed = match std::env::var("BLIND_FIXED").as_deref() {
         Ok("finest") => Some(KernelStart::Finest),
@@ -970,6 +970,47 @@ fn starts(split: Split) {
     }
 }
 
+/// Experiment: the kernel at two cleaning thresholds (the default and 0.05) per case, with
+/// the true ratio of each and blind selection criteria ([`criteria`], the normalised sparsity
+/// `Σ|∇x| / ‖∇x‖₂` of the restoration, the kernel's support count), for offline analysis of
+/// whether a blind criterion picks the better threshold.
+fn thresholds(split: Split) {
+    let root = PathBuf::from(
+        std::env::var("CALIPER_BLIND_DATA").unwrap_or_else(|_| "../shared/data".into()),
+    );
+    for case in cases(&root, split) {
+        let truth =
+            tv_deconv(&case.blurred, &case.psf, &TvParams::default(), &NoProgress).expect("tv");
+        for t in [DEFAULT_KERNEL_THRESHOLD, 0.05] {
+            let params = BlindParams {
+                kernel_threshold: Some(t),
+                ..BlindParams::default()
+            };
+            let out = blind_deconv(&case.blurred, &params, &NoProgress).expect("blind");
+            let r = error_ratio_aligned(&case.sharp, &out.image, &truth, BORDER, MAX_SHIFT)
+                .expect("ratio");
+            let (res, tv, l0) = criteria(&case.blurred, &out.image, &out.psf);
+            let x = &out.image;
+            let (mut l1, mut l2) = (0.0f64, 0.0f64);
+            for py in BORDER..x.height - BORDER {
+                for px in BORDER..x.width - BORDER {
+                    let gx = f64::from(x.at(px + 1, py) - x.at(px, py));
+                    let gy = f64::from(x.at(px, py + 1) - x.at(px, py));
+                    l1 += gx.abs() + gy.abs();
+                    l2 += gx * gx + gy * gy;
+                }
+            }
+            let support = out.psf.data.iter().filter(|&&v| v > 0.0).count();
+            println!(
+                "T {} {t} {} {r:.4} {res:.6e} {tv:.6e} {l0:.6e} {:.6e} {support}",
+                case.name,
+                out.psf.width,
+                l1 / l2.sqrt().max(1e-12)
+            );
+        }
+    }
+}
+
 /// Blur-extent estimate against the truth's bounding box (entries >= 5 % of the max).
 fn sizes(split: Split) {
     let root = PathBuf::from(
@@ -1045,6 +1086,13 @@ fn main() {
         // their true ratios and blind selection criteria (for offline analysis).
         Some("size") => sizes(Split::Tune),
         Some("starts") => starts(Split::Tune),
+        Some("thresholds") => thresholds(match args.get(1).map(String::as_str) {
+            Some("tremor") => Split::Tremor,
+            Some("texture") => Split::Texture,
+            Some("levin") => Split::Levin,
+            Some("levin-synth") => Split::LevinSynth,
+            _ => Split::Tune,
+        }),
         Some("size-tremor") => sizes(Split::Tremor),
         Some("size-texture") => sizes(Split::Texture),
         Some("size-eval") => sizes(Split::Eval),

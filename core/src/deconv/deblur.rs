@@ -4,7 +4,7 @@ use image::DynamicImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::blind::{BlindParams, estimate_kernel};
+use super::blind::{BlindParams, estimate_kernel_restored};
 use super::blind_rl::blind_richardson_lucy;
 use super::color::{merge_image, split_image};
 use super::gyro::{GyroPsfParams, gyro_psf, gyro_psf_grid};
@@ -61,9 +61,11 @@ pub struct DeblurParams {
     /// `blind` when no extent is found: 31 or a third of the shorter side).
     pub kernel_size: Option<usize>,
     /// For `blind` only: kernel entries below this fraction of the kernel's maximum are dropped
-    /// after every kernel step (0.01–0.5, default 0.1). 0.05 keeps the faint strokes of long
-    /// camera-shake paths that end in a bright dwell point, at the cost of more noise in the
-    /// kernel; on chessboards and repetitive textures it is worse (README, limits).
+    /// after every kernel step (0.01–0.5). Default (`null`): kernels at 0.1 and 0.05 are both
+    /// estimated and the one whose restoration explains the image better and is sharper is
+    /// kept (twice the time). 0.05 keeps the faint strokes of long camera-shake paths that end
+    /// in a bright dwell point; 0.1 keeps less of the least squares' noise, which chessboards
+    /// and repetitive textures need.
     pub kernel_threshold: Option<f64>,
     /// Gyro trace, exposure and intrinsics for `gyro`.
     pub gyro: Option<GyroPsfParams>,
@@ -231,9 +233,7 @@ impl DeblurParams {
     fn blind_params(&self) -> BlindParams {
         BlindParams {
             kernel_size: self.kernel_size,
-            kernel_threshold: self
-                .kernel_threshold
-                .unwrap_or(super::DEFAULT_KERNEL_THRESHOLD),
+            kernel_threshold: self.kernel_threshold,
             final_tv: TvParams {
                 lambda: self.tv_lambda,
                 iterations: self.iterations.unwrap_or(TvParams::default().iterations),
@@ -283,12 +283,19 @@ pub fn deblur_image(
     let split = split_image(img)?;
     let (w, h) = (img.width() as usize, img.height() as usize);
     let iterations = params.iterations;
+    // The blind choice between kernels restores the luma; a grey image's is the result.
+    let mut luma_restored: Option<Plane> = None;
     let psf = match params.method {
         DeblurMethod::Wiener | DeblurMethod::RichardsonLucy | DeblurMethod::Tv => params
             .psf
             .clone()
             .ok_or_else(|| CoreError::param("psf", "missing"))?,
-        DeblurMethod::Blind => estimate_kernel(&split.luma(), &params.blind_params(), progress)?,
+        DeblurMethod::Blind => {
+            let (psf, restored) =
+                estimate_kernel_restored(&split.luma(), &params.blind_params(), progress)?;
+            luma_restored = restored.filter(|_| split.color.len() == 1);
+            psf
+        }
         DeblurMethod::BlindRl => {
             let ks = params.blind_params().kernel_size_for(w, h)?;
             blind_richardson_lucy(&split.luma(), ks, iterations.unwrap_or(50), progress)?.1
@@ -341,7 +348,10 @@ pub fn deblur_image(
             Some((kernels, nx, ny)) => deconv_varying(p, kernels, *nx, *ny, |tile, k| {
                 tv_deconv(tile, k, &tv, progress)
             }),
-            None => run(p),
+            None => match &luma_restored {
+                Some(done) => Ok(done.clone()),
+                None => run(p),
+            },
         })
         .collect::<CoreResult<Vec<Plane>>>()?;
     Ok(DeblurOutput {

@@ -133,7 +133,7 @@ fn blind_kernel_threshold_sets_the_cleaning() {
     let support = |t: f64| {
         let params = BlindParams {
             kernel_size: Some(17),
-            kernel_threshold: t,
+            kernel_threshold: Some(t),
             ..BlindParams::default()
         };
         let k = estimate_kernel(&blurred, &params, &NoProgress).expect("kernel");

@@ -115,6 +115,7 @@ use serde::{Deserialize, Serialize};
 mod diagnose;
 mod kernel;
 mod latent;
+mod select;
 mod size;
 
 use super::fft::Fft2;
@@ -129,6 +130,7 @@ use crate::progress::Progress;
 pub use diagnose::{KernelStart, estimate_kernel_from};
 use kernel::{clean_kernel, kernel_step, recentre};
 use latent::{l0_restore, salient_threshold};
+pub use select::{LOW_KERNEL_THRESHOLD, estimate_kernel_restored};
 use size::adaptive_kernel_size;
 pub use size::{estimate_blur_extent, gradient_autocorrelation};
 
@@ -150,10 +152,12 @@ pub struct BlindParams {
     /// Weight of `‖k‖²` in the kernel step (default 2, on un-normalised gradient sums).
     pub kernel_reg: f64,
     /// Kernel entries below this fraction of the kernel's maximum are dropped after every
-    /// kernel step, at every level (0.01–0.5; default [`DEFAULT_KERNEL_THRESHOLD`]). Lower keeps
-    /// the faint strokes of a long camera-shake path, and also more of the least squares'
-    /// noise; see [`DEFAULT_KERNEL_THRESHOLD`] for what each setting measured.
-    pub kernel_threshold: f64,
+    /// kernel step, at every level (0.01–0.5). Lower keeps the faint strokes of a long
+    /// camera-shake path, and also more of the least squares' noise; see
+    /// [`DEFAULT_KERNEL_THRESHOLD`] for what each setting measured. Default (`null`): kernels
+    /// at [`DEFAULT_KERNEL_THRESHOLD`] and [`LOW_KERNEL_THRESHOLD`] are both estimated and the
+    /// one whose restoration scores better blindly is kept (`select::selection_score`).
+    pub kernel_threshold: Option<f64>,
     /// Final non-blind TV solve. Its `saturation` level also marks the clipped pixels that the
     /// kernel estimate and the blur-extent estimate leave out.
     pub final_tv: TvParams,
@@ -166,7 +170,7 @@ impl Default for BlindParams {
             iterations_per_level: 5,
             lambda_grad: 4e-3,
             kernel_reg: 2.0,
-            kernel_threshold: DEFAULT_KERNEL_THRESHOLD,
+            kernel_threshold: None,
             final_tv: TvParams::default(),
         }
     }
@@ -195,7 +199,9 @@ impl BlindParams {
         if !(self.kernel_reg.is_finite() && self.kernel_reg > 0.0) {
             return Err(CoreError::param("kernel_reg", "must be finite and > 0"));
         }
-        if !(self.kernel_threshold.is_finite() && (0.01..=0.5).contains(&self.kernel_threshold)) {
+        if let Some(t) = self.kernel_threshold
+            && !(t.is_finite() && (0.01..=0.5).contains(&t))
+        {
             return Err(CoreError::param(
                 "kernel_threshold",
                 "must be between 0.01 and 0.5",
@@ -235,8 +241,11 @@ pub fn blind_deconv(
     params: &BlindParams,
     progress: &dyn Progress,
 ) -> CoreResult<BlindOutput> {
-    let psf = estimate_kernel(img, params, progress)?;
-    let image = tv_deconv(img, &psf, &params.final_tv, progress)?;
+    let (psf, image) = estimate_kernel_restored(img, params, progress)?;
+    let image = match image {
+        Some(image) => image,
+        None => tv_deconv(img, &psf, &params.final_tv, progress)?,
+    };
     Ok(BlindOutput { image, psf })
 }
 
@@ -275,6 +284,11 @@ const LEVEL_RATIO: f64 = std::f64::consts::FRAC_1_SQRT_2;
 ///   after the FFT column pass changed rounding: the brick texture, the smooth clock face and
 ///   the rocket's sky still defeat the edge-based latent — there the estimate grows into a blob).
 ///
+/// Unless [`BlindParams::kernel_threshold`] fixes the cleaning threshold, the whole estimate
+/// runs twice, at [`DEFAULT_KERNEL_THRESHOLD`] and [`LOW_KERNEL_THRESHOLD`], and the kernel
+/// whose TV restoration scores better blindly (re-blur residual × normalised sparsity,
+/// `select.rs`) is returned ([`estimate_kernel_restored`] also returns that restoration).
+///
 /// Each level works on the image mirrored and tapered into a periodic FFT domain (the role of
 /// Liu & Jia's boundary wrapping in the authors' code). Levin et al., "Understanding and
 /// evaluating blind deconvolution algorithms", CVPR 2009, explain why this works where MAP on the
@@ -285,7 +299,7 @@ pub fn estimate_kernel(
     params: &BlindParams,
     progress: &dyn Progress,
 ) -> CoreResult<Psf> {
-    estimate_kernel_traced(img, params, progress, None, None)
+    estimate_kernel_restored(img, params, progress).map(|(k, _)| k)
 }
 
 /// [`estimate_kernel`], also returning the kernel of every level resampled to full scale (for
@@ -568,7 +582,11 @@ fn estimate_level(
             &gammas,
             &kernel,
         );
-        clean_kernel(&mut kernel, ks, params.kernel_threshold);
+        clean_kernel(
+            &mut kernel,
+            ks,
+            params.kernel_threshold.unwrap_or(DEFAULT_KERNEL_THRESHOLD),
+        );
         lambda = (lambda / 1.1).max(1e-4);
         progress.report("blind_kernel", (done + it + 1) as u64, total as u64);
     }
