@@ -81,7 +81,13 @@
 //! * on Levin et al.'s real set (`blind_eval -- levin`, 18 of 32): 5 % cleaning thresholds
 //!   (`levin-synth` 23 → 29 of 32 but TUNE 23 → 12), a weak-prior polish step, Pan et al.
 //!   2016's dark channel with its nested splitting, deferred or final-only lower cleaning —
-//!   numbers in `core/benches/deconv_set.md`.
+//!   numbers in `core/benches/deconv_set.md`. Kept instead: both thresholds, and a blind
+//!   choice between their kernels (`select.rs`).
+//! * as that choice's score, the re-blur residual alone (Levin σ = 0.01: 24 of 32 against
+//!   30 with the product), the restoration's normalised sparsity alone (TUNE 17 of 44 against
+//!   23), the share of strong gradients, its product with the residual, or the residual times
+//!   the restoration's TV: each behind the product on at least one split
+//!   (`blind_eval -- thresholds <split>` prints every criterion per case).
 //!
 //! **The estimator is biased, not lost.** Started from the true kernel
 //! ([`estimate_kernel_from`], `BLIND_FIXED=pyramid|finest` in the harness, window 1.3 × the
