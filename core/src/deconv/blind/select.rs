@@ -19,9 +19,9 @@ use crate::progress::Progress;
 /// The second cleaning threshold tried when [`BlindParams::kernel_threshold`] is not given.
 pub const LOW_KERNEL_THRESHOLD: f64 = 0.05;
 
-/// [`super::estimate_kernel`], also returning the restoration `final_tv` made of `img` with the kernel
-/// when choosing between thresholds needed one (`None` with a fixed threshold), so that a
-/// caller restoring `img` itself need not solve it again.
+/// [`super::estimate_kernel`], also returning the restoration `final_tv` made of `img` with
+/// the kernel when choosing between thresholds needed one (`None` with a fixed threshold), so
+/// that a caller restoring `img` itself need not solve it again.
 pub fn estimate_kernel_restored(
     img: &Plane,
     params: &BlindParams,
@@ -46,7 +46,8 @@ pub fn estimate_kernel_restored(
             count: candidates.len() as u64,
         };
         let psf = super::estimate_kernel_traced(img, &fixed, &part, None, None)?;
-        let image = tv_deconv(img, &psf, &params.final_tv, progress)?;
+        let image = tv_deconv(img, &psf, &params.final_tv, &part)?;
+        progress.check()?;
         let score = selection_score(img, &image, &psf);
         // Ties and non-finite scores keep the earlier (default) candidate.
         if best.as_ref().is_none_or(|(s, ..)| score < *s) {
@@ -58,7 +59,8 @@ pub fn estimate_kernel_restored(
     Ok((psf, Some(image)))
 }
 
-/// Reports one of `count` consecutive runs of the same step as its share of a single bar.
+/// Reports one of `count` consecutive runs of the same steps as its share of a single bar, so
+/// that a job's progress never runs backwards when the second candidate starts.
 struct Share<'a> {
     inner: &'a dyn Progress,
     index: u64,
