@@ -7,8 +7,9 @@
 //! editing images.
 //!
 //! ```text
-//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|eval2|levin|levin-synth|time [--only TEXT] [-v]
+//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|eval2|eval3|levin|levin-synth|time [--only TEXT] [-v]
 //! cargo run -p caliper-core --release --example blind_eval -- size|size-tremor|size-texture|size-eval|starts
+//! cargo run -p caliper-core --release --example blind_eval -- thresholds tune|tremor|texture|levin|levin-synth
 //! ```
 //!
 //! Sharp images come from `CALIPER_BLIND_DATA` (default `../shared/data`, i.e. the shared data
@@ -34,7 +35,9 @@
 //!   2 kernels each from [`shake_3d`] (seeds from 1 000 001) and 2 from [`shake_impulsive`], a
 //!   different trajectory model. EVAL is for reporting only: never tune on it.
 //! * **EVAL2**: EVAL's photos and generators, seeds from 11 000 001 (other crops, kernels and
-//!   noise): run once to confirm a choice made after seeing EVAL.
+//!   noise): run once to confirm a choice made after seeing EVAL (used on 2026-12-05 for the
+//!   choice between cleaning thresholds).
+//! * **EVAL3**: the same with seeds from 21 000 001, for the next such confirmation.
 //! * **LEVIN** (`levin`, `levin-synth`): Levin et al. 2009's real camera-shake set (four
 //!   poster photos × eight measured kernels, 13–27 px), read from `CALIPER_LEVIN_DIR` (not
 //!   shipped; see `common/levin.rs`): the captured blurred images, or the sharp photos blurred
@@ -53,7 +56,8 @@
 //!
 //! Environment: `CALIPER_BLIND_DATA` (data root), `BLIND_KS` / `BLIND_ITERS` (override
 //! `kernel_size` / `iterations_per_level`, for experiments), `BLIND_THRESHOLD` (override
-//! `kernel_threshold`), `BLIND_ORACLE=F` (window = F × the
+//! `kernel_threshold`: one threshold, no choice), `BLIND_PAIR=A,B` (with `thresholds`: the
+//! two thresholds compared), `BLIND_ORACLE=F` (window = F × the
 //! true kernel side: the ceiling of size estimation), `BLIND_NOSAT=1` (every pixel linear in
 //! both solves: `saturation: null`), `BLIND_SAT=1` (over-exposed variant of
 //! the split: 1–6 % of each scene above the white level, see [`overexpose`]), `BLIND_SAT=2`
@@ -72,9 +76,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use caliper_core::deconv::{
-    BlindParams, DEFAULT_KERNEL_THRESHOLD, DEFAULT_SATURATION, KernelStart, Plane, Psf, TvParams,
-    blind_deconv, error_ratio_aligned, estimate_blur_extent, estimate_kernel_from,
-    estimate_kernel_trace, gradient_autocorrelation, psnr, tv_deconv,
+    BlindParams, DEFAULT_KERNEL_THRESHOLD, DEFAULT_SATURATION, KernelStart, LOW_KERNEL_THRESHOLD,
+    Plane, Psf, TvParams, blind_deconv, error_ratio_aligned, estimate_blur_extent,
+    estimate_kernel_from, estimate_kernel_trace, gradient_autocorrelation, psnr, tv_deconv,
 };
 use caliper_core::io::{ImageLimits, decode_gray8};
 use caliper_core::progress::NoProgress;
@@ -393,6 +397,8 @@ enum Split {
     /// EVAL's photos and kernel generators with other seeds: a second held-out split, for
     /// confirming a choice made after EVAL was seen (never tuned on).
     Eval2,
+    /// The same with seeds from 21 000 001: the next confirmation split, unused until then.
+    Eval3,
     /// Levin et al. 2009's real camera-shake set from `CALIPER_LEVIN_DIR` (never tuned on):
     /// the captured blurred images ([`levin`]).
     Levin,
@@ -426,7 +432,7 @@ fn sources(root: &Path, split: Split) -> Vec<(String, PathBuf)> {
                 out.push((n.to_string(), sk.join(format!("{n}.png"))));
             }
         }
-        Split::Eval | Split::Eval2 => {
+        Split::Eval | Split::Eval2 | Split::Eval3 => {
             for n in [
                 "brick",
                 "coins",
@@ -484,6 +490,7 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
         Split::Texture => 7_000_001,
         Split::Eval | Split::Levin | Split::LevinSynth => 1_000_001,
         Split::Eval2 => 11_000_001,
+        Split::Eval3 => 21_000_001,
     };
     let mut srcs: Vec<(String, Option<textures::Source>)> = sources(root, split)
         .into_iter()
@@ -516,13 +523,14 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
             let seed = base + 10 * si as u64 + j;
             let mut rng = Rng::new(seed);
             let extent = 11.0 + 30.0 * (j as f64 + rng.uniform()) / 4.0;
-            let (gen_name, psf) = if matches!(split, Split::Eval | Split::Eval2) && j % 2 == 1 {
-                ("imp", shake_impulsive(&mut rng, extent))
-            } else if split == Split::Tremor {
-                ("trem", shake_tremor(&mut rng, extent))
-            } else {
-                ("3d", shake_3d(&mut rng, extent))
-            };
+            let (gen_name, psf) =
+                if matches!(split, Split::Eval | Split::Eval2 | Split::Eval3) && j % 2 == 1 {
+                    ("imp", shake_impulsive(&mut rng, extent))
+                } else if split == Split::Tremor {
+                    ("trem", shake_tremor(&mut rng, extent))
+                } else {
+                    ("3d", shake_3d(&mut rng, extent))
+                };
             let mut sq = crop(&src, &mut rng);
             match saturate.as_deref() {
                 Some("1") => overexpose(&mut sq, seed),
@@ -981,7 +989,12 @@ fn thresholds(split: Split) {
     for case in cases(&root, split) {
         let truth =
             tv_deconv(&case.blurred, &case.psf, &TvParams::default(), &NoProgress).expect("tv");
-        for t in [DEFAULT_KERNEL_THRESHOLD, 0.05] {
+        // `BLIND_PAIR=A,B` tries other thresholds (experiments).
+        let pair: Vec<f64> = std::env::var("BLIND_PAIR")
+            .ok()
+            .map(|v| v.split(',').filter_map(|t| t.trim().parse().ok()).collect())
+            .unwrap_or_else(|| vec![DEFAULT_KERNEL_THRESHOLD, LOW_KERNEL_THRESHOLD]);
+        for &t in &pair {
             let params = BlindParams {
                 kernel_threshold: Some(t),
                 ..BlindParams::default()
@@ -1079,6 +1092,7 @@ fn main() {
         Some("texture") => run(Split::Texture, only, verbose),
         Some("eval") => run(Split::Eval, only, verbose),
         Some("eval2") => run(Split::Eval2, only, verbose),
+        Some("eval3") => run(Split::Eval3, only, verbose),
         Some("levin") => run(Split::Levin, only, verbose),
         Some("levin-synth") => run(Split::LevinSynth, only, verbose),
         Some("time") => time(),
@@ -1097,7 +1111,7 @@ fn main() {
         Some("size-texture") => sizes(Split::Texture),
         Some("size-eval") => sizes(Split::Eval),
         _ => eprintln!(
-            "usage: blind_eval tune|tremor|texture|eval|eval2|levin|levin-synth|time|size|size-tremor|size-texture|size-eval|starts [--only TEXT] [-v]"
+            "usage: blind_eval tune|tremor|texture|eval|eval2|eval3|levin|levin-synth|time|size|size-tremor|size-texture|size-eval|starts|thresholds [SPLIT] [--only TEXT] [-v]"
         ),
     }
 }
