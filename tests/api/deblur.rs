@@ -279,6 +279,10 @@ async fn blind_and_gyro_deblur_return_their_kernels() {
         .await;
     let done = s.wait_terminal(&id).await;
     assert_eq!(done["status"], "succeeded", "{done}");
+    // The document says which cleaning threshold the blind choice kept.
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    let t = doc["parameters"]["images"][0]["kernel"]["cleaning_threshold"].as_f64();
+    assert!(matches!(t, Some(v) if v == 0.1 || v == 0.05), "{doc}");
     let k = kernel_of(&s, &id, "b").await;
     let (mut sx, mut sy) = (0.0, 0.0);
     let (cx, cy) = ((k.width / 2) as f64, (k.height / 2) as f64);
@@ -305,6 +309,12 @@ async fn blind_and_gyro_deblur_return_their_kernels() {
         .await;
     let done = s.wait_terminal(&id).await;
     assert_eq!(done["status"], "succeeded", "{done}");
+    // Only the blind method has a cleaning threshold to report.
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    assert!(
+        doc["parameters"]["images"][0]["kernel"]["cleaning_threshold"].is_null(),
+        "{doc}"
+    );
     let k = kernel_of(&s, &id, "b").await;
     let (extent_x, extent_y) = extents(&k);
     assert!(

@@ -268,6 +268,9 @@ pub struct DeblurOutput {
     pub psf: Psf,
     /// The method that ran.
     pub method: DeblurMethod,
+    /// For `blind`: the cleaning threshold the kernel was estimated with (given, or the one
+    /// the blind choice kept).
+    pub kernel_threshold: Option<f64>,
 }
 
 /// Deblurs an 8/16-bit (or float) grey, grey+alpha, RGB or RGBA image; the result has the same
@@ -285,16 +288,17 @@ pub fn deblur_image(
     let iterations = params.iterations;
     // The blind choice between kernels restores the luma; a grey image's is the result.
     let mut luma_restored: Option<Plane> = None;
+    let mut kernel_threshold: Option<f64> = None;
     let psf = match params.method {
         DeblurMethod::Wiener | DeblurMethod::RichardsonLucy | DeblurMethod::Tv => params
             .psf
             .clone()
             .ok_or_else(|| CoreError::param("psf", "missing"))?,
         DeblurMethod::Blind => {
-            let (psf, restored) =
-                estimate_kernel_restored(&split.luma(), &params.blind_params(), progress)?;
-            luma_restored = restored.filter(|_| split.color.len() == 1);
-            psf
+            let e = estimate_kernel_restored(&split.luma(), &params.blind_params(), progress)?;
+            luma_restored = e.restored.filter(|_| split.color.len() == 1);
+            kernel_threshold = Some(e.threshold);
+            e.psf
         }
         DeblurMethod::BlindRl => {
             let ks = params.blind_params().kernel_size_for(w, h)?;
@@ -358,6 +362,7 @@ pub fn deblur_image(
         image: merge_image(&split, &planes)?,
         psf,
         method: params.method,
+        kernel_threshold,
     })
 }
 

@@ -137,7 +137,7 @@ use crate::progress::Progress;
 pub use diagnose::{KernelStart, estimate_kernel_from};
 use kernel::{clean_kernel, kernel_step, recentre};
 use latent::{l0_restore, salient_threshold};
-pub use select::{LOW_KERNEL_THRESHOLD, estimate_kernel_restored};
+pub use select::{KernelEstimate, LOW_KERNEL_THRESHOLD, estimate_kernel_restored};
 use size::adaptive_kernel_size;
 pub use size::{estimate_blur_extent, gradient_autocorrelation};
 
@@ -248,8 +248,9 @@ pub fn blind_deconv(
     params: &BlindParams,
     progress: &dyn Progress,
 ) -> CoreResult<BlindOutput> {
-    let (psf, image) = estimate_kernel_restored(img, params, progress)?;
-    let image = match image {
+    let estimate = estimate_kernel_restored(img, params, progress)?;
+    let psf = estimate.psf;
+    let image = match estimate.restored {
         Some(image) => image,
         None => tv_deconv(img, &psf, &params.final_tv, progress)?,
     };
@@ -306,7 +307,7 @@ pub fn estimate_kernel(
     params: &BlindParams,
     progress: &dyn Progress,
 ) -> CoreResult<Psf> {
-    estimate_kernel_restored(img, params, progress).map(|(k, _)| k)
+    estimate_kernel_restored(img, params, progress).map(|e| e.psf)
 }
 
 /// [`estimate_kernel`], also returning the kernel of every level resampled to full scale (for

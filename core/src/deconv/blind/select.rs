@@ -19,25 +19,39 @@ use crate::progress::Progress;
 /// The second cleaning threshold tried when [`BlindParams::kernel_threshold`] is not given.
 pub const LOW_KERNEL_THRESHOLD: f64 = 0.05;
 
-/// [`super::estimate_kernel`], also returning the restoration `final_tv` made of `img` with
-/// the kernel when choosing between thresholds needed one (`None` with a fixed threshold), so
-/// that a caller restoring `img` itself need not solve it again.
+/// A blind kernel estimate with what [`estimate_kernel_restored`] learned on the way.
+#[derive(Debug, Clone, PartialEq)]
+pub struct KernelEstimate {
+    /// The kernel.
+    pub psf: Psf,
+    /// The cleaning threshold it was estimated with (given, or chosen between
+    /// [`DEFAULT_KERNEL_THRESHOLD`] and [`LOW_KERNEL_THRESHOLD`]).
+    pub threshold: f64,
+    /// The restoration `final_tv` made of the image with the kernel when choosing between
+    /// thresholds needed one (`None` with a fixed threshold), so that a caller restoring the
+    /// image itself need not solve it again.
+    pub restored: Option<Plane>,
+}
+
+/// [`super::estimate_kernel`], with the threshold used and, when there was a choice, the
+/// restoration that decided it.
 pub fn estimate_kernel_restored(
     img: &Plane,
     params: &BlindParams,
     progress: &dyn Progress,
-) -> CoreResult<(Psf, Option<Plane>)> {
-    if params.kernel_threshold.is_some() {
-        return Ok((
-            super::estimate_kernel_traced(img, params, progress, None, None)?,
-            None,
-        ));
+) -> CoreResult<KernelEstimate> {
+    if let Some(threshold) = params.kernel_threshold {
+        return Ok(KernelEstimate {
+            psf: super::estimate_kernel_traced(img, params, progress, None, None)?,
+            threshold,
+            restored: None,
+        });
     }
-    let mut best: Option<(f64, Psf, Plane)> = None;
+    let mut best: Option<(f64, KernelEstimate)> = None;
     let candidates = [DEFAULT_KERNEL_THRESHOLD, LOW_KERNEL_THRESHOLD];
-    for (i, t) in candidates.into_iter().enumerate() {
+    for (i, threshold) in candidates.into_iter().enumerate() {
         let fixed = BlindParams {
-            kernel_threshold: Some(t),
+            kernel_threshold: Some(threshold),
             ..params.clone()
         };
         let part = Share {
@@ -50,13 +64,17 @@ pub fn estimate_kernel_restored(
         progress.check()?;
         let score = selection_score(img, &image, &psf);
         // Ties and non-finite scores keep the earlier (default) candidate.
-        if best.as_ref().is_none_or(|(s, ..)| score < *s) {
-            best = Some((score, psf, image));
+        if best.as_ref().is_none_or(|(s, _)| score < *s) {
+            let estimate = KernelEstimate {
+                psf,
+                threshold,
+                restored: Some(image),
+            };
+            best = Some((score, estimate));
         }
     }
-    let (_, psf, image) =
-        best.ok_or_else(|| CoreError::param("kernel_threshold", "no candidate"))?;
-    Ok((psf, Some(image)))
+    best.map(|(_, e)| e)
+        .ok_or_else(|| CoreError::param("kernel_threshold", "no candidate"))
 }
 
 /// Reports one of `count` consecutive runs of the same steps as its share of a single bar, so
@@ -200,5 +218,15 @@ mod tests {
         );
         let kernel = estimate_kernel(&blurred, &at(None), &NoProgress).expect("kernel");
         assert!(close(&kernel.data, &want.psf.data));
+        let chosen = estimate_kernel_restored(&blurred, &at(None), &NoProgress).expect("estimate");
+        let want_t = if s_lo < s_hi {
+            LOW_KERNEL_THRESHOLD
+        } else {
+            DEFAULT_KERNEL_THRESHOLD
+        };
+        assert_eq!(chosen.threshold, want_t);
+        let fixed = estimate_kernel_restored(&blurred, &at(Some(0.2)), &NoProgress).expect("fixed");
+        assert_eq!(fixed.threshold, 0.2);
+        assert!(fixed.restored.is_none());
     }
 }

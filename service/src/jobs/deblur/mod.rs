@@ -247,17 +247,22 @@ pub(crate) fn restore(
         media_type: "image/png".into(),
         data: preview(img, &out.image)?.into(),
     });
+    let mut kernel = json!({
+        "width": out.psf.width,
+        "height": out.psf.height,
+        "artifact_png": format!("{s}.kernel.png"),
+        "artifact_json": format!("{s}.kernel.json"),
+    });
+    if let Some(t) = out.kernel_threshold {
+        // Which of the blind estimates was kept (or the one asked for).
+        kernel["cleaning_threshold"] = json!(t);
+    }
     Ok(json!({
         "artifact": out_name,
         "width": img.width(),
         "height": img.height(),
         "color": format!("{:?}", img.color()),
-        "kernel": {
-            "width": out.psf.width,
-            "height": out.psf.height,
-            "artifact_png": format!("{s}.kernel.png"),
-            "artifact_json": format!("{s}.kernel.json"),
-        },
+        "kernel": kernel,
     }))
 }
 
