@@ -13,7 +13,7 @@ use super::super::ops::SparseKernel;
 use super::super::tv::tv_deconv;
 use super::super::{Plane, Psf};
 use super::{BlindParams, DEFAULT_KERNEL_THRESHOLD};
-use crate::error::{CoreError, CoreResult};
+use crate::error::CoreResult;
 use crate::progress::Progress;
 
 /// The second cleaning threshold tried when [`BlindParams::kernel_threshold`] is not given.
@@ -47,34 +47,35 @@ pub fn estimate_kernel_restored(
             restored: None,
         });
     }
-    let mut best: Option<(f64, KernelEstimate)> = None;
-    let candidates = [DEFAULT_KERNEL_THRESHOLD, LOW_KERNEL_THRESHOLD];
-    for (i, threshold) in candidates.into_iter().enumerate() {
+    // Each candidate: its kernel, its restoration and the blind score of the pair.
+    let candidate = |index: u64, threshold: f64| -> CoreResult<(f64, KernelEstimate)> {
         let fixed = BlindParams {
             kernel_threshold: Some(threshold),
             ..params.clone()
         };
         let part = Share {
             inner: progress,
-            index: i as u64,
-            count: candidates.len() as u64,
+            index,
+            count: 2,
         };
         let psf = super::estimate_kernel_traced(img, &fixed, &part, None, None)?;
         let image = tv_deconv(img, &psf, &params.final_tv, &part)?;
         progress.check()?;
         let score = selection_score(img, &image, &psf);
-        // Ties and non-finite scores keep the earlier (default) candidate.
-        if best.as_ref().is_none_or(|(s, _)| score < *s) {
-            let estimate = KernelEstimate {
+        let restored = Some(image);
+        Ok((
+            score,
+            KernelEstimate {
                 psf,
                 threshold,
-                restored: Some(image),
-            };
-            best = Some((score, estimate));
-        }
-    }
-    best.map(|(_, e)| e)
-        .ok_or_else(|| CoreError::param("kernel_threshold", "no candidate"))
+                restored,
+            },
+        ))
+    };
+    let default = candidate(0, DEFAULT_KERNEL_THRESHOLD)?;
+    let low = candidate(1, LOW_KERNEL_THRESHOLD)?;
+    // Ties and non-finite scores keep the default candidate.
+    Ok(if low.0 < default.0 { low.1 } else { default.1 })
 }
 
 /// Reports one of `count` consecutive runs of the same steps as its share of a single bar, so
