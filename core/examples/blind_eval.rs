@@ -76,9 +76,10 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use caliper_core::deconv::{
-    BlindParams, DEFAULT_KERNEL_THRESHOLD, DEFAULT_SATURATION, KernelStart, LOW_KERNEL_THRESHOLD,
-    Plane, Psf, TvParams, blind_deconv, error_ratio_aligned, estimate_blur_extent,
-    estimate_kernel_from, estimate_kernel_trace, gradient_autocorrelation, psnr, tv_deconv,
+    AGREEMENT_SHIFT, BlindOutput, BlindParams, DEFAULT_KERNEL_THRESHOLD, DEFAULT_SATURATION,
+    KernelStart, LOW_KERNEL_THRESHOLD, Plane, Psf, TvParams, UNCERTAIN_AGREEMENT, blind_deconv,
+    error_ratio_aligned, estimate_blur_extent, estimate_kernel_from, estimate_kernel_restored,
+    estimate_kernel_trace, gradient_autocorrelation, kernel_agreement, psnr, tv_deconv,
 };
 use caliper_core::io::{ImageLimits, decode_gray8};
 use caliper_core::progress::NoProgress;
@@ -654,6 +655,8 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         _ => None,
     };
     let mut ratios = Vec::new();
+    // (agreement of the two candidates, ratio) of the cases that had two.
+    let mut agreements: Vec<(f64, f64)> = Vec::new();
     let mut times = Vec::new();
     let mut per_source: Vec<(String, usize, usize)> = Vec::new();
     // Cases at ratio <= 3 and all cases, by true kernel side <= SIZE_SPLIT px and beyond.
@@ -709,7 +712,16 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
             continue;
         }
         let t = Instant::now();
-        let out = blind_deconv(&case.blurred, &params, &NoProgress).expect("blind");
+        // `blind_deconv`, keeping the estimate's agreement between candidates.
+        let est = estimate_kernel_restored(&case.blurred, &params, &NoProgress).expect("blind");
+        let image = match est.restored {
+            Some(x) => x,
+            None => tv_deconv(&case.blurred, &est.psf, &params.final_tv, &NoProgress).expect("tv"),
+        };
+        let out = BlindOutput {
+            image,
+            psf: est.psf,
+        };
         let dt = t.elapsed().as_secs_f64();
         let truth = tv_deconv(&case.blurred, &case.psf, &params.final_tv, &NoProgress).expect("tv");
         let r =
@@ -788,6 +800,9 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
             print_kernels(&case.psf, &out.psf);
         }
         tally(&mut per_source, &mut by_size, &case, r);
+        if let Some(a) = est.agreement {
+            agreements.push((a, r));
+        }
         ratios.push(r);
         times.push(dt);
     }
@@ -796,6 +811,19 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         .map(|(n, ok, all)| format!("{n} {ok}/{all}"))
         .collect();
     println!("per source (<=3): {}", line.join(", "));
+    if !agreements.is_empty() {
+        let (low, high): (Vec<_>, Vec<_>) = agreements
+            .iter()
+            .partition(|(a, _)| *a < UNCERTAIN_AGREEMENT);
+        let ok = |v: &[&(f64, f64)]| v.iter().filter(|(_, r)| *r <= 3.0).count();
+        println!(
+            "uncertain (agreement < {UNCERTAIN_AGREEMENT}): {} cases, {} at <=3; the others {}, {} at <=3",
+            low.len(),
+            ok(&low),
+            high.len(),
+            ok(&high)
+        );
+    }
     if !psnrs.is_empty() {
         let n = psnrs.len() as f64;
         println!(
@@ -994,6 +1022,7 @@ fn thresholds(split: Split) {
             .ok()
             .map(|v| v.split(',').filter_map(|t| t.trim().parse().ok()).collect())
             .unwrap_or_else(|| vec![DEFAULT_KERNEL_THRESHOLD, LOW_KERNEL_THRESHOLD]);
+        let mut psfs = Vec::new();
         for &t in &pair {
             let params = BlindParams {
                 kernel_threshold: Some(t),
@@ -1014,11 +1043,19 @@ fn thresholds(split: Split) {
                 }
             }
             let support = out.psf.data.iter().filter(|&&v| v > 0.0).count();
+            psfs.push(out.psf.clone());
             println!(
                 "T {} {t} {} {r:.4} {res:.6e} {tv:.6e} {l0:.6e} {:.6e} {support}",
                 case.name,
                 out.psf.width,
                 l1 / l2.sqrt().max(1e-12)
+            );
+        }
+        if psfs.len() == 2 {
+            println!(
+                "A {} {:.4}",
+                case.name,
+                kernel_agreement(&psfs[0], &psfs[1], AGREEMENT_SHIFT)
             );
         }
     }

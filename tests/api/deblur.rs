@@ -283,6 +283,13 @@ async fn blind_and_gyro_deblur_return_their_kernels() {
     let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
     let t = doc["parameters"]["images"][0]["kernel"]["cleaning_threshold"].as_f64();
     assert!(matches!(t, Some(v) if v == 0.1 || v == 0.05), "{doc}");
+    // And how far the two candidate kernels agree: on a clean 9 px streak they agree, so the
+    // kernel is not flagged and the quality block counts no uncertain kernel.
+    let kernel = &doc["parameters"]["images"][0]["kernel"];
+    let agreement = kernel["agreement"].as_f64().expect("agreement");
+    assert!((0.0..=1.0).contains(&agreement), "{doc}");
+    assert_eq!(kernel["uncertain"], json!(agreement < 0.8), "{doc}");
+    assert_eq!(doc["quality"]["uncertain_kernels"], json!(0), "{doc}");
     let k = kernel_of(&s, &id, "b").await;
     let (mut sx, mut sy) = (0.0, 0.0);
     let (cx, cy) = ((k.width / 2) as f64, (k.height / 2) as f64);
@@ -313,6 +320,12 @@ async fn blind_and_gyro_deblur_return_their_kernels() {
     let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
     assert!(
         doc["parameters"]["images"][0]["kernel"]["cleaning_threshold"].is_null(),
+        "{doc}"
+    );
+    // Nor an agreement between candidates.
+    assert!(
+        doc["parameters"]["images"][0]["kernel"]["agreement"].is_null()
+            && doc["quality"]["uncertain_kernels"].is_null(),
         "{doc}"
     );
     let k = kernel_of(&s, &id, "b").await;

@@ -271,6 +271,9 @@ pub struct DeblurOutput {
     /// For `blind`: the cleaning threshold the kernel was estimated with (given, or the one
     /// the blind choice kept).
     pub kernel_threshold: Option<f64>,
+    /// For `blind` without a fixed threshold: how far the two candidate kernels agree
+    /// ([`super::kernel_agreement`]); below [`super::UNCERTAIN_AGREEMENT`] the kernel is doubtful.
+    pub kernel_agreement: Option<f64>,
 }
 
 /// Deblurs an 8/16-bit (or float) grey, grey+alpha, RGB or RGBA image; the result has the same
@@ -289,6 +292,7 @@ pub fn deblur_image(
     // The blind choice between kernels restores the luma; a grey image's is the result.
     let mut luma_restored: Option<Plane> = None;
     let mut kernel_threshold: Option<f64> = None;
+    let mut kernel_agreement: Option<f64> = None;
     let psf = match params.method {
         DeblurMethod::Wiener | DeblurMethod::RichardsonLucy | DeblurMethod::Tv => params
             .psf
@@ -298,6 +302,7 @@ pub fn deblur_image(
             let e = estimate_kernel_restored(&split.luma(), &params.blind_params(), progress)?;
             luma_restored = e.restored.filter(|_| split.color.len() == 1);
             kernel_threshold = Some(e.threshold);
+            kernel_agreement = e.agreement;
             e.psf
         }
         DeblurMethod::BlindRl => {
@@ -363,6 +368,7 @@ pub fn deblur_image(
         psf,
         method: params.method,
         kernel_threshold,
+        kernel_agreement,
     })
 }
 

@@ -119,6 +119,7 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+mod agreement;
 mod clipped;
 mod diagnose;
 mod kernel;
@@ -135,6 +136,7 @@ use super::wiener::gradient_power;
 use super::{PadLayout, Plane, Psf};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
+pub use agreement::{AGREEMENT_SHIFT, UNCERTAIN_AGREEMENT, kernel_agreement};
 use clipped::clipped_map;
 pub use diagnose::{KernelStart, estimate_kernel_from};
 use kernel::{clean_kernel, kernel_step, recentre};

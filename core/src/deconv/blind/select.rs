@@ -12,6 +12,7 @@ use rayon::prelude::*;
 use super::super::ops::SparseKernel;
 use super::super::tv::tv_deconv;
 use super::super::{Plane, Psf};
+use super::agreement::{AGREEMENT_SHIFT, kernel_agreement};
 use super::{BlindParams, DEFAULT_KERNEL_THRESHOLD};
 use crate::error::CoreResult;
 use crate::progress::Progress;
@@ -31,6 +32,9 @@ pub struct KernelEstimate {
     /// thresholds needed one (`None` with a fixed threshold), so that a caller restoring the
     /// image itself need not solve it again.
     pub restored: Option<Plane>,
+    /// [`kernel_agreement`] of the two candidate kernels when both were estimated (`None` with
+    /// a fixed threshold); below [`super::UNCERTAIN_AGREEMENT`] the kernel is doubtful.
+    pub agreement: Option<f64>,
 }
 
 /// [`super::estimate_kernel`], with the threshold used and, when there was a choice, the
@@ -45,6 +49,7 @@ pub fn estimate_kernel_restored(
             psf: super::estimate_kernel_traced(img, params, progress, None, None)?,
             threshold,
             restored: None,
+            agreement: None,
         });
     }
     // Each candidate: its kernel, its restoration and the blind score of the pair.
@@ -69,13 +74,20 @@ pub fn estimate_kernel_restored(
                 psf,
                 threshold,
                 restored,
+                agreement: None,
             },
         ))
     };
     let default = candidate(0, DEFAULT_KERNEL_THRESHOLD)?;
     let low = candidate(1, LOW_KERNEL_THRESHOLD)?;
+    let agreement = Some(kernel_agreement(
+        &default.1.psf,
+        &low.1.psf,
+        AGREEMENT_SHIFT,
+    ));
     // Ties and non-finite scores keep the default candidate.
-    Ok(if low.0 < default.0 { low.1 } else { default.1 })
+    let kept = if low.0 < default.0 { low.1 } else { default.1 };
+    Ok(KernelEstimate { agreement, ..kept })
 }
 
 /// Reports one of `count` consecutive runs of the same steps as its share of a single bar, so
@@ -205,6 +217,7 @@ mod tests {
         };
         let (s_hi, hi) = scored(DEFAULT_KERNEL_THRESHOLD);
         let (s_lo, lo) = scored(LOW_KERNEL_THRESHOLD);
+        let want_a = kernel_agreement(&hi.psf, &lo.psf, AGREEMENT_SHIFT);
         let want = if s_lo < s_hi { lo } else { hi };
         // Parallel sums may round differently from run to run: compare within a tolerance.
         let close = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(a, b)| (a - b).abs() < 1e-6);
@@ -226,8 +239,16 @@ mod tests {
             DEFAULT_KERNEL_THRESHOLD
         };
         assert_eq!(chosen.threshold, want_t);
+        // The agreement compares the two candidates, whichever was kept; a clean streak on a
+        // textured scene pins the kernel down, so they agree.
+        let agreement = chosen.agreement.expect("two candidates");
+        assert!((agreement - want_a).abs() < 1e-6, "{agreement} vs {want_a}");
+        assert!(
+            agreement >= super::super::UNCERTAIN_AGREEMENT,
+            "{agreement}"
+        );
         let fixed = estimate_kernel_restored(&blurred, &at(Some(0.2)), &NoProgress).expect("fixed");
         assert_eq!(fixed.threshold, 0.2);
-        assert!(fixed.restored.is_none());
+        assert!(fixed.restored.is_none() && fixed.agreement.is_none());
     }
 }

@@ -150,7 +150,7 @@ pub(super) fn deblur_clip(
             notes.first().map(|n| format!(": {n}")).unwrap_or_default()
         )));
     }
-    let quality = json!({"images": frames.len(), "method": p.method});
+    let quality = super::quality(&frames, p);
     Ok(JobOutput {
         parameters: json!({"method": p.method, "video": info, "frames_chosen": wanted,
                            "images": frames, "notes": notes}),

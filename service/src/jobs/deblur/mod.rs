@@ -10,7 +10,7 @@
 use std::io::Cursor;
 
 use caliper_core::Progress;
-use caliper_core::deconv::{DeblurParams, deblur_image, psf_png};
+use caliper_core::deconv::{DeblurParams, UNCERTAIN_AGREEMENT, deblur_image, psf_png};
 use caliper_core::io::ImageLimits;
 use image::{DynamicImage, ImageFormat};
 use serde_json::{Value, json};
@@ -201,13 +201,30 @@ impl Kind for Deblur {
             images.push(entry);
         }
         progress.report("deblur", total, total);
-        let quality = json!({"images": images.len(), "method": p.method});
+        let quality = quality(&images, &p);
         Ok(JobOutput {
             parameters: json!({"method": p.method, "images": images}),
             quality,
             artifacts,
         })
     }
+}
+
+/// The document's `quality`: how many images, the method, and for `blind` how many kernels
+/// came out uncertain (the two candidate kernels disagree, see `kernel.agreement`).
+pub(crate) fn quality(images: &[Value], p: &DeblurParams) -> Value {
+    let mut q = json!({"images": images.len(), "method": p.method});
+    if images
+        .iter()
+        .any(|e| e["kernel"].get("uncertain").is_some())
+    {
+        let uncertain = images
+            .iter()
+            .filter(|e| e["kernel"]["uncertain"] == json!(true))
+            .count();
+        q["uncertain_kernels"] = json!(uncertain);
+    }
+    q
 }
 
 /// Deblurs one picture, pushing its artifacts (`out_name`, kernel PNG and JSON, preview);
@@ -256,6 +273,11 @@ pub(crate) fn restore(
     if let Some(t) = out.kernel_threshold {
         // Which of the blind estimates was kept (or the one asked for).
         kernel["cleaning_threshold"] = json!(t);
+    }
+    if let Some(a) = out.kernel_agreement {
+        // The two blind candidates disagree: the kernel (and so the restoration) is doubtful.
+        kernel["agreement"] = json!(a);
+        kernel["uncertain"] = json!(a < UNCERTAIN_AGREEMENT);
     }
     Ok(json!({
         "artifact": out_name,

@@ -1,0 +1,92 @@
+//! How far two blind kernel estimates of the same photo agree: a warning sign, not a fix.
+//!
+//! The default blind estimate runs twice, at two cleaning thresholds (`select.rs`). Where
+//! the photo pins the kernel down, both runs land on the same path and differ only in its
+//! faint ends; where it does not (a repetitive texture, a board whose lattice admits shifted
+//! copies, a window too small for the blur), the two runs wander to different kernels, and
+//! the one kept is then usually wrong as well. Measured on the tuning splits of
+//! `examples/blind_eval.rs` (TUNE, TREMOR, TEXTURE and Levin et al.'s two sets, 188 cases):
+//! with agreement below [`UNCERTAIN_AGREEMENT`] 34 cases, 8 of them (24 %) at error ratio ≤ 3;
+//! at or above it 154 cases, 103 (67 %) at ratio ≤ 3, against 59 % over all. The sign misses
+//! the failures where both runs collapse onto the same wrong kernel (most of Levin et al.'s
+//! captured failures), so a kernel that passes is not thereby right.
+
+use super::super::Psf;
+
+/// Agreement below which a blind kernel is reported as uncertain (`deblur` documents:
+/// `kernel.uncertain`). Chosen on the tuning splits above (0.7: 26 flagged, 7 at ratio ≤ 3;
+/// 0.85: 43 flagged, 14; 0.9: 70, 25).
+pub const UNCERTAIN_AGREEMENT: f64 = 0.8;
+
+/// Integer shifts, in px, over which [`kernel_agreement`] aligns the two kernels: both are
+/// re-centred on their centroid, so their paths can differ in position only by the mass
+/// their faint ends add.
+pub const AGREEMENT_SHIFT: usize = 4;
+
+/// Largest normalised correlation `⟨a, shift(b)⟩ / (‖a‖‖b‖)` over integer shifts of up to
+/// `max_shift` px, both kernels centred on their windows: 1 for the same kernel anywhere
+/// within reach, 0 for supports that never overlap.
+pub fn kernel_agreement(a: &Psf, b: &Psf, max_shift: usize) -> f64 {
+    let norm = |k: &Psf| k.data.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let (na, nb) = (norm(a), norm(b));
+    if na <= 0.0 || nb <= 0.0 {
+        return 0.0;
+    }
+    let ms = max_shift as isize;
+    // Offset of b's window in a's frame for a zero shift (centres aligned).
+    let ox = (b.width / 2) as isize - (a.width / 2) as isize;
+    let oy = (b.height / 2) as isize - (a.height / 2) as isize;
+    let mut best = 0.0f64;
+    for dy in -ms..=ms {
+        for dx in -ms..=ms {
+            let mut s = 0.0;
+            for (y, row) in a.data.chunks(a.width).enumerate() {
+                let by = y as isize + oy + dy;
+                if by < 0 || by >= b.height as isize {
+                    continue;
+                }
+                let brow = &b.data[by as usize * b.width..(by as usize + 1) * b.width];
+                for (x, &v) in row.iter().enumerate() {
+                    let bx = x as isize + ox + dx;
+                    if v != 0.0 && bx >= 0 && bx < b.width as isize {
+                        s += v * brow[bx as usize];
+                    }
+                }
+            }
+            best = best.max(s);
+        }
+    }
+    (best / (na * nb)).clamp(0.0, 1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn kernel(ks: usize, points: &[(usize, usize)]) -> Psf {
+        let mut data = vec![0.0; ks * ks];
+        for &(x, y) in points {
+            data[y * ks + x] = 1.0;
+        }
+        Psf::from_weights(ks, ks, data).expect("psf")
+    }
+
+    /// Same kernel: 1, also shifted within reach; disjoint: 0; partial overlap in between;
+    /// symmetric; windows of different sizes are compared centre to centre.
+    #[test]
+    fn agreement_is_a_normalised_aligned_correlation() {
+        let line = kernel(15, &[(5, 7), (6, 7), (7, 7), (8, 7)]);
+        assert!((kernel_agreement(&line, &line, 4) - 1.0).abs() < 1e-12);
+        let moved = kernel(15, &[(9, 11), (10, 11), (11, 11), (12, 11)]);
+        assert!((kernel_agreement(&line, &moved, 4) - 1.0).abs() < 1e-12);
+        assert!(kernel_agreement(&line, &moved, 2) < 0.01);
+        let vertical = kernel(15, &[(7, 5), (7, 6), (7, 7), (7, 8)]);
+        let a = kernel_agreement(&line, &vertical, 0);
+        assert!((a - 0.25).abs() < 1e-12, "one of four taps shared: {a}");
+        assert!((a - kernel_agreement(&vertical, &line, 0)).abs() < 1e-12);
+        let wide = kernel(21, &[(8, 10), (9, 10), (10, 10), (11, 10)]);
+        assert!((kernel_agreement(&line, &wide, 0) - 1.0).abs() < 1e-12);
+        let far = kernel(15, &[(0, 0)]);
+        assert_eq!(kernel_agreement(&line, &far, 4), 0.0);
+    }
+}
