@@ -1026,6 +1026,8 @@ fn thresholds(split: Split) {
         for &t in &pair {
             let params = BlindParams {
                 kernel_threshold: Some(t),
+                // `BLIND_KS` fixes the window here too (experiments).
+                kernel_size: std::env::var("BLIND_KS").ok().and_then(|v| v.parse().ok()),
                 ..BlindParams::default()
             };
             let out = blind_deconv(&case.blurred, &params, &NoProgress).expect("blind");

@@ -7,9 +7,17 @@
 //! the one kept is then usually wrong as well. Measured on the tuning splits of
 //! `examples/blind_eval.rs` (TUNE, TREMOR, TEXTURE and Levin et al.'s two sets, 188 cases):
 //! with agreement below [`UNCERTAIN_AGREEMENT`] 34 cases, 8 of them (24 %) at error ratio ≤ 3;
-//! at or above it 154 cases, 103 (67 %) at ratio ≤ 3, against 59 % over all. The sign misses
-//! the failures where both runs collapse onto the same wrong kernel (most of Levin et al.'s
-//! captured failures), so a kernel that passes is not thereby right.
+//! at or above it 154 cases, 103 (67 %) at ratio ≤ 3, against 59 % over all. On the three
+//! held-out splits (EVAL, EVAL2, EVAL3; 144 cases) 34 are flagged, 6 of them at ratio ≤ 3,
+//! against 70 of the other 110. The sign misses the failures where both runs collapse onto
+//! the same wrong kernel (all of Levin et al.'s captured failures), so a kernel that passes
+//! is not thereby right.
+//!
+//! Tried and not kept: a third estimate for flagged photos only, with a 45 px window (the
+//! texture photos' windows are too small, `size.rs`), all candidates chosen by the same
+//! score: TUNE 23 → 24, TREMOR 19 → 20, TEXTURE 17 → 17 of 44 / 44 / 36 at ratio ≤ 3, too
+//! little for 1.5× the time on those photos. On flagged photos both candidates usually fail
+//! (the better of the two passes on 8 of 34), so the flag cannot steer the choice either.
 
 use super::super::Psf;
 
