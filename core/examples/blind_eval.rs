@@ -7,7 +7,7 @@
 //! editing images.
 //!
 //! ```text
-//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|eval2|eval3|levin|levin-synth|time [--only TEXT] [-v]
+//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|eval2|eval3|eval4|levin|levin-synth|time [--only TEXT] [-v]
 //! cargo run -p caliper-core --release --example blind_eval -- size|size-tremor|size-texture|size-eval|starts
 //! cargo run -p caliper-core --release --example blind_eval -- thresholds tune|tremor|texture|levin|levin-synth
 //! ```
@@ -37,7 +37,9 @@
 //! * **EVAL2**: EVAL's photos and generators, seeds from 11 000 001 (other crops, kernels and
 //!   noise): run once to confirm a choice made after seeing EVAL (used on 2026-12-05 for the
 //!   choice between cleaning thresholds).
-//! * **EVAL3**: the same with seeds from 21 000 001, for the next such confirmation.
+//! * **EVAL3**: the same with seeds from 21 000 001 (first run 2026-12-05: the shipped
+//!   estimator and the `kernel.uncertain` flag, both chosen without it).
+//! * **EVAL4**: the same with seeds from 31 000 001, unused: for the next confirmation.
 //! * **LEVIN** (`levin`, `levin-synth`): Levin et al. 2009's real camera-shake set (four
 //!   poster photos × eight measured kernels, 13–27 px), read from `CALIPER_LEVIN_DIR` (not
 //!   shipped; see `common/levin.rs`): the captured blurred images, or the sharp photos blurred
@@ -398,8 +400,10 @@ enum Split {
     /// EVAL's photos and kernel generators with other seeds: a second held-out split, for
     /// confirming a choice made after EVAL was seen (never tuned on).
     Eval2,
-    /// The same with seeds from 21 000 001: the next confirmation split, unused until then.
+    /// The same with seeds from 21 000 001 (used once, 2026-12-05).
     Eval3,
+    /// The same with seeds from 31 000 001: the next confirmation split, unused until then.
+    Eval4,
     /// Levin et al. 2009's real camera-shake set from `CALIPER_LEVIN_DIR` (never tuned on):
     /// the captured blurred images ([`levin`]).
     Levin,
@@ -433,7 +437,7 @@ fn sources(root: &Path, split: Split) -> Vec<(String, PathBuf)> {
                 out.push((n.to_string(), sk.join(format!("{n}.png"))));
             }
         }
-        Split::Eval | Split::Eval2 | Split::Eval3 => {
+        Split::Eval | Split::Eval2 | Split::Eval3 | Split::Eval4 => {
             for n in [
                 "brick",
                 "coins",
@@ -492,6 +496,7 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
         Split::Eval | Split::Levin | Split::LevinSynth => 1_000_001,
         Split::Eval2 => 11_000_001,
         Split::Eval3 => 21_000_001,
+        Split::Eval4 => 31_000_001,
     };
     let mut srcs: Vec<(String, Option<textures::Source>)> = sources(root, split)
         .into_iter()
@@ -524,14 +529,17 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
             let seed = base + 10 * si as u64 + j;
             let mut rng = Rng::new(seed);
             let extent = 11.0 + 30.0 * (j as f64 + rng.uniform()) / 4.0;
-            let (gen_name, psf) =
-                if matches!(split, Split::Eval | Split::Eval2 | Split::Eval3) && j % 2 == 1 {
-                    ("imp", shake_impulsive(&mut rng, extent))
-                } else if split == Split::Tremor {
-                    ("trem", shake_tremor(&mut rng, extent))
-                } else {
-                    ("3d", shake_3d(&mut rng, extent))
-                };
+            let (gen_name, psf) = if matches!(
+                split,
+                Split::Eval | Split::Eval2 | Split::Eval3 | Split::Eval4
+            ) && j % 2 == 1
+            {
+                ("imp", shake_impulsive(&mut rng, extent))
+            } else if split == Split::Tremor {
+                ("trem", shake_tremor(&mut rng, extent))
+            } else {
+                ("3d", shake_3d(&mut rng, extent))
+            };
             let mut sq = crop(&src, &mut rng);
             match saturate.as_deref() {
                 Some("1") => overexpose(&mut sq, seed),
@@ -1132,6 +1140,7 @@ fn main() {
         Some("eval") => run(Split::Eval, only, verbose),
         Some("eval2") => run(Split::Eval2, only, verbose),
         Some("eval3") => run(Split::Eval3, only, verbose),
+        Some("eval4") => run(Split::Eval4, only, verbose),
         Some("levin") => run(Split::Levin, only, verbose),
         Some("levin-synth") => run(Split::LevinSynth, only, verbose),
         Some("time") => time(),
@@ -1150,7 +1159,7 @@ fn main() {
         Some("size-texture") => sizes(Split::Texture),
         Some("size-eval") => sizes(Split::Eval),
         _ => eprintln!(
-            "usage: blind_eval tune|tremor|texture|eval|eval2|eval3|levin|levin-synth|time|size|size-tremor|size-texture|size-eval|starts|thresholds [SPLIT] [--only TEXT] [-v]"
+            "usage: blind_eval tune|tremor|texture|eval|eval2|eval3|eval4|levin|levin-synth|time|size|size-tremor|size-texture|size-eval|starts|thresholds [SPLIT] [--only TEXT] [-v]"
         ),
     }
 }
