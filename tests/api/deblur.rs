@@ -222,6 +222,35 @@ fn offline_deblur_writes_the_image_under_its_name_and_the_kernel() {
             assert!(err.contains("saturation"), "{err}");
         }
     }
+    // Blind offline: the printed document carries the candidates' agreement as the service's
+    // does, and a fixed cleaning threshold (one candidate) carries none.
+    let blind = |extra: &[&str]| -> Value {
+        let o = std::process::Command::new(caliper_bin())
+            .args(["run", "deblur", "--method", "blind", "--kernel-size", "9"])
+            .args(extra)
+            .arg(&input)
+            .output()
+            .expect("run caliper");
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice(&o.stdout).expect("document")
+    };
+    let doc = blind(&[]);
+    let k = &doc["parameters"]["images"][0]["kernel"];
+    let a = k["agreement"].as_f64().expect("agreement");
+    assert!((0.0..=1.0).contains(&a), "{doc}");
+    assert_eq!(k["uncertain"], json!(a < 0.8), "{doc}");
+    assert_eq!(
+        doc["quality"]["uncertain_kernels"],
+        json!(usize::from(a < 0.8)),
+        "{doc}"
+    );
+    let doc = blind(&["--kernel-threshold", "0.1"]);
+    let k = &doc["parameters"]["images"][0]["kernel"];
+    assert_eq!(k["cleaning_threshold"], json!(0.1), "{doc}");
+    assert!(
+        k["agreement"].is_null() && k["uncertain"].is_null(),
+        "{doc}"
+    );
     // A kernel file that is not a kernel: clear error, non-zero exit.
     std::fs::write(&kernel, "1 2\n3\n").expect("write");
     let o = run(&["--method", "wiener"], false);
