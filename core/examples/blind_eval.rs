@@ -1148,13 +1148,17 @@ fn main() {
         // their true ratios and blind selection criteria (for offline analysis).
         Some("size") => sizes(Split::Tune),
         Some("starts") => starts(Split::Tune),
-        Some("thresholds") => thresholds(match args.get(1).map(String::as_str) {
-            Some("tremor") => Split::Tremor,
-            Some("texture") => Split::Texture,
-            Some("levin") => Split::Levin,
-            Some("levin-synth") => Split::LevinSynth,
-            _ => Split::Tune,
-        }),
+        // Tuning splits only: the held-out ones are not for per-criterion analysis.
+        Some("thresholds") => match args.get(1).map(String::as_str) {
+            Some("tune") | None => thresholds(Split::Tune),
+            Some("tremor") => thresholds(Split::Tremor),
+            Some("texture") => thresholds(Split::Texture),
+            Some("levin") => thresholds(Split::Levin),
+            Some("levin-synth") => thresholds(Split::LevinSynth),
+            Some(other) => {
+                eprintln!("thresholds: {other}? tune|tremor|texture|levin|levin-synth")
+            }
+        },
         Some("size-tremor") => sizes(Split::Tremor),
         Some("size-texture") => sizes(Split::Texture),
         Some("size-eval") => sizes(Split::Eval),
