@@ -636,10 +636,13 @@ fn tally(
     slot.1 += 1;
 }
 
+/// Root of the sharp photos: `CALIPER_BLIND_DATA`, else the shared data beside the project.
+fn data_root() -> PathBuf {
+    PathBuf::from(std::env::var("CALIPER_BLIND_DATA").unwrap_or_else(|_| "../shared/data".into()))
+}
+
 fn run(split: Split, only: Option<&str>, verbose: bool) {
-    let root = PathBuf::from(
-        std::env::var("CALIPER_BLIND_DATA").unwrap_or_else(|_| "../shared/data".into()),
-    );
+    let root = data_root();
     let mut params = BlindParams::default();
     // Experiment knobs (defaults = the library's defaults).
     if let Some(k) = std::env::var("BLIND_KS").ok().and_then(|v| v.parse().ok()) {
@@ -898,9 +901,7 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
 }
 
 fn time() {
-    let root = PathBuf::from(
-        std::env::var("CALIPER_BLIND_DATA").unwrap_or_else(|_| "../shared/data".into()),
-    );
+    let root = data_root();
     let cs = cases(&root, Split::Tune);
     let c = &cs[1];
     let mut params = BlindParams::default();
@@ -985,9 +986,7 @@ fn criteria(y: &Plane, x: &Plane, k: &Psf) -> (f64, f64, f64) {
 
 /// Experiment: several starts per case with their true ratios and blind criteria.
 fn starts(split: Split) {
-    let root = PathBuf::from(
-        std::env::var("CALIPER_BLIND_DATA").unwrap_or_else(|_| "../shared/data".into()),
-    );
+    let root = data_root();
     for case in cases(&root, split) {
         let truth =
             tv_deconv(&case.blurred, &case.psf, &TvParams::default(), &NoProgress).expect("tv");
@@ -1019,23 +1018,21 @@ fn starts(split: Split) {
 /// `Σ|∇x| / ‖∇x‖₂` of the restoration, the kernel's support count), for offline analysis of
 /// whether a blind criterion picks the better threshold.
 fn thresholds(split: Split) {
-    let root = PathBuf::from(
-        std::env::var("CALIPER_BLIND_DATA").unwrap_or_else(|_| "../shared/data".into()),
-    );
+    let root = data_root();
+    // `BLIND_PAIR=A,B` tries other thresholds, `BLIND_KS` fixes the window (experiments).
+    let pair: Vec<f64> = std::env::var("BLIND_PAIR")
+        .ok()
+        .map(|v| v.split(',').filter_map(|t| t.trim().parse().ok()).collect())
+        .unwrap_or_else(|| vec![DEFAULT_KERNEL_THRESHOLD, LOW_KERNEL_THRESHOLD]);
+    let kernel_size = std::env::var("BLIND_KS").ok().and_then(|v| v.parse().ok());
     for case in cases(&root, split) {
         let truth =
             tv_deconv(&case.blurred, &case.psf, &TvParams::default(), &NoProgress).expect("tv");
-        // `BLIND_PAIR=A,B` tries other thresholds (experiments).
-        let pair: Vec<f64> = std::env::var("BLIND_PAIR")
-            .ok()
-            .map(|v| v.split(',').filter_map(|t| t.trim().parse().ok()).collect())
-            .unwrap_or_else(|| vec![DEFAULT_KERNEL_THRESHOLD, LOW_KERNEL_THRESHOLD]);
         let mut psfs = Vec::new();
         for &t in &pair {
             let params = BlindParams {
                 kernel_threshold: Some(t),
-                // `BLIND_KS` fixes the window here too (experiments).
-                kernel_size: std::env::var("BLIND_KS").ok().and_then(|v| v.parse().ok()),
+                kernel_size,
                 ..BlindParams::default()
             };
             let out = blind_deconv(&case.blurred, &params, &NoProgress).expect("blind");
@@ -1073,9 +1070,7 @@ fn thresholds(split: Split) {
 
 /// Blur-extent estimate against the truth's bounding box (entries >= 5 % of the max).
 fn sizes(split: Split) {
-    let root = PathBuf::from(
-        std::env::var("CALIPER_BLIND_DATA").unwrap_or_else(|_| "../shared/data".into()),
-    );
+    let root = data_root();
     let mut rel = Vec::new();
     for case in cases(&root, split) {
         let k = &case.psf;
