@@ -7,7 +7,7 @@
 //! editing images.
 //!
 //! ```text
-//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|eval2|eval3|eval4|levin|levin-synth|time [--only TEXT] [-v]
+//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|eval2|eval3|eval4|eval5|levin|levin-synth|time [--only TEXT] [-v]
 //! cargo run -p caliper-core --release --example blind_eval -- size|size-tremor|size-texture|size-eval|starts
 //! cargo run -p caliper-core --release --example blind_eval -- thresholds tune|tremor|texture|levin|levin-synth
 //! ```
@@ -39,7 +39,9 @@
 //!   choice between cleaning thresholds).
 //! * **EVAL3**: the same with seeds from 21 000 001 (first run 2026-12-05: the shipped
 //!   estimator and the `kernel.uncertain` flag, both chosen without it).
-//! * **EVAL4**: the same with seeds from 31 000 001, unused: for the next confirmation.
+//! * **EVAL4**: the same with seeds from 31 000 001 (first run 2026-12-05: the shipped
+//!   estimator and the `kernel.misfit` warning, both chosen without it).
+//! * **EVAL5**: the same with seeds from 41 000 001, unused: for the next confirmation.
 //! * **LEVIN** (`levin`, `levin-synth`): Levin et al. 2009's real camera-shake set (four
 //!   poster photos × eight measured kernels, 13–27 px), read from `CALIPER_LEVIN_DIR` (not
 //!   shipped; see `common/levin.rs`): the captured blurred images, or the sharp photos blurred
@@ -79,9 +81,10 @@ use std::time::Instant;
 
 use caliper_core::deconv::{
     AGREEMENT_SHIFT, BlindOutput, BlindParams, DEFAULT_KERNEL_THRESHOLD, DEFAULT_SATURATION,
-    KernelStart, LOW_KERNEL_THRESHOLD, Plane, Psf, TvParams, UNCERTAIN_AGREEMENT, blind_deconv,
-    error_ratio_aligned, estimate_blur_extent, estimate_kernel_from, estimate_kernel_restored,
-    estimate_kernel_trace, gradient_autocorrelation, kernel_agreement, psnr, tv_deconv,
+    KernelStart, LOW_KERNEL_THRESHOLD, MISFIT_LIMIT, Plane, Psf, TvParams, UNCERTAIN_AGREEMENT,
+    blind_deconv, error_ratio_aligned, estimate_blur_extent, estimate_kernel_from,
+    estimate_kernel_restored, estimate_kernel_trace, gradient_autocorrelation, kernel_agreement,
+    kernel_misfit, kernel_uncertain, psnr, tv_deconv,
 };
 use caliper_core::io::{ImageLimits, decode_gray8};
 use caliper_core::progress::NoProgress;
@@ -402,8 +405,10 @@ enum Split {
     Eval2,
     /// The same with seeds from 21 000 001 (used once, 2026-12-05).
     Eval3,
-    /// The same with seeds from 31 000 001: the next confirmation split, unused until then.
+    /// The same with seeds from 31 000 001 (used once, 2026-12-05).
     Eval4,
+    /// The same with seeds from 41 000 001: the next confirmation split, unused until then.
+    Eval5,
     /// Levin et al. 2009's real camera-shake set from `CALIPER_LEVIN_DIR` (never tuned on):
     /// the captured blurred images ([`levin`]).
     Levin,
@@ -437,7 +442,7 @@ fn sources(root: &Path, split: Split) -> Vec<(String, PathBuf)> {
                 out.push((n.to_string(), sk.join(format!("{n}.png"))));
             }
         }
-        Split::Eval | Split::Eval2 | Split::Eval3 | Split::Eval4 => {
+        Split::Eval | Split::Eval2 | Split::Eval3 | Split::Eval4 | Split::Eval5 => {
             for n in [
                 "brick",
                 "coins",
@@ -497,6 +502,7 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
         Split::Eval2 => 11_000_001,
         Split::Eval3 => 21_000_001,
         Split::Eval4 => 31_000_001,
+        Split::Eval5 => 41_000_001,
     };
     let mut srcs: Vec<(String, Option<textures::Source>)> = sources(root, split)
         .into_iter()
@@ -531,7 +537,7 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
             let extent = 11.0 + 30.0 * (j as f64 + rng.uniform()) / 4.0;
             let (gen_name, psf) = if matches!(
                 split,
-                Split::Eval | Split::Eval2 | Split::Eval3 | Split::Eval4
+                Split::Eval | Split::Eval2 | Split::Eval3 | Split::Eval4 | Split::Eval5
             ) && j % 2 == 1
             {
                 ("imp", shake_impulsive(&mut rng, extent))
@@ -666,8 +672,9 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         _ => None,
     };
     let mut ratios = Vec::new();
-    // (agreement of the two candidates, ratio) of the cases that had two.
-    let mut agreements: Vec<(f64, f64)> = Vec::new();
+    // (agreement of the two candidates, misfit of the kept one, ratio) of the cases that had
+    // two.
+    let mut warnings: Vec<(f64, f64, f64)> = Vec::new();
     let mut times = Vec::new();
     let mut per_source: Vec<(String, usize, usize)> = Vec::new();
     // Cases at ratio <= 3 and all cases, by true kernel side <= SIZE_SPLIT px and beyond.
@@ -811,8 +818,8 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
             print_kernels(&case.psf, &out.psf);
         }
         tally(&mut per_source, &mut by_size, &case, r);
-        if let Some(a) = est.agreement {
-            agreements.push((a, r));
+        if let (Some(a), Some(m)) = (est.agreement, est.misfit) {
+            warnings.push((a, m, r));
         }
         ratios.push(r);
         times.push(dt);
@@ -822,17 +829,26 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         .map(|(n, ok, all)| format!("{n} {ok}/{all}"))
         .collect();
     println!("per source (<=3): {}", line.join(", "));
-    if !agreements.is_empty() {
-        let (low, high): (Vec<_>, Vec<_>) = agreements
-            .iter()
-            .partition(|(a, _)| *a < UNCERTAIN_AGREEMENT);
-        let ok = |v: &[&(f64, f64)]| v.iter().filter(|(_, r)| *r <= 3.0).count();
+    // Each warning sign alone, then the shipped rule (either sign).
+    type Sign = fn(&(f64, f64, f64)) -> bool;
+    let signs: [(String, Sign); 3] = [
+        (format!("agreement < {UNCERTAIN_AGREEMENT}"), |w| {
+            w.0 < UNCERTAIN_AGREEMENT
+        }),
+        (format!("misfit > {MISFIT_LIMIT}"), |w| w.1 > MISFIT_LIMIT),
+        ("uncertain (either)".into(), |w| {
+            kernel_uncertain(Some(w.0), Some(w.1)) == Some(true)
+        }),
+    ];
+    for (label, flagged) in signs.iter().filter(|_| !warnings.is_empty()) {
+        let (on, off): (Vec<_>, Vec<_>) = warnings.iter().partition(|w| flagged(w));
+        let ok = |v: &[&(f64, f64, f64)]| v.iter().filter(|w| w.2 <= 3.0).count();
         println!(
-            "uncertain (agreement < {UNCERTAIN_AGREEMENT}): {} cases, {} at <=3; the others {}, {} at <=3",
-            low.len(),
-            ok(&low),
-            high.len(),
-            ok(&high)
+            "{label}: {} cases, {} at <=3; the others {}, {} at <=3",
+            on.len(),
+            ok(&on),
+            off.len(),
+            ok(&off)
         );
     }
     if !psnrs.is_empty() {
@@ -1050,9 +1066,11 @@ fn thresholds(split: Split) {
                 }
             }
             let support = out.psf.data.iter().filter(|&&v| v > 0.0).count();
+            let (border, eff) = kernel_shape(&out.psf);
+            let misfit = kernel_misfit(&case.blurred, &out.image, &out.psf);
             psfs.push(out.psf.clone());
             println!(
-                "T {} {t} {} {r:.4} {res:.6e} {tv:.6e} {l0:.6e} {:.6e} {support}",
+                "T {} {t} {} {r:.4} {res:.6e} {tv:.6e} {l0:.6e} {:.6e} {support} {border:.4} {eff:.2} {misfit:.4}",
                 case.name,
                 out.psf.width,
                 l1 / l2.sqrt().max(1e-12)
@@ -1060,12 +1078,43 @@ fn thresholds(split: Split) {
         }
         if psfs.len() == 2 {
             println!(
-                "A {} {:.4}",
+                "A {} {:.4} {:.6e}",
                 case.name,
-                kernel_agreement(&psfs[0], &psfs[1], AGREEMENT_SHIFT)
+                kernel_agreement(&psfs[0], &psfs[1], AGREEMENT_SHIFT),
+                noise_sigma(&case.blurred)
             );
         }
     }
+}
+
+/// Share of the kernel's mass within 2 px of its window's edge, and its effective number of
+/// entries `1 / Σk²` (the kernel is normalised).
+fn kernel_shape(k: &Psf) -> (f64, f64) {
+    let (mut edge, mut sq) = (0.0, 0.0);
+    for y in 0..k.height {
+        for x in 0..k.width {
+            let v = k.at(x, y);
+            sq += v * v;
+            if x < 2 || y < 2 || x + 2 >= k.width || y + 2 >= k.height {
+                edge += v;
+            }
+        }
+    }
+    (edge, 1.0 / sq.max(1e-12))
+}
+
+/// Noise σ from the median absolute diagonal Haar detail (Donoho's MAD rule).
+fn noise_sigma(y: &Plane) -> f64 {
+    let mut d = Vec::new();
+    for py in (0..y.height - 1).step_by(2) {
+        for px in (0..y.width - 1).step_by(2) {
+            let v =
+                (y.at(px, py) - y.at(px + 1, py) - y.at(px, py + 1) + y.at(px + 1, py + 1)) / 2.0;
+            d.push(f64::from(v.abs()));
+        }
+    }
+    d.sort_by(f64::total_cmp);
+    d[d.len() / 2] / 0.6745
 }
 
 /// Blur-extent estimate against the truth's bounding box (entries >= 5 % of the max).
@@ -1136,6 +1185,7 @@ fn main() {
         Some("eval2") => run(Split::Eval2, only, verbose),
         Some("eval3") => run(Split::Eval3, only, verbose),
         Some("eval4") => run(Split::Eval4, only, verbose),
+        Some("eval5") => run(Split::Eval5, only, verbose),
         Some("levin") => run(Split::Levin, only, verbose),
         Some("levin-synth") => run(Split::LevinSynth, only, verbose),
         Some("time") => time(),
@@ -1158,7 +1208,7 @@ fn main() {
         Some("size-texture") => sizes(Split::Texture),
         Some("size-eval") => sizes(Split::Eval),
         _ => eprintln!(
-            "usage: blind_eval tune|tremor|texture|eval|eval2|eval3|eval4|levin|levin-synth|time|size|size-tremor|size-texture|size-eval|starts|thresholds [SPLIT] [--only TEXT] [-v]"
+            "usage: blind_eval tune|tremor|texture|eval|eval2|eval3|eval4|eval5|levin|levin-synth|time|size|size-tremor|size-texture|size-eval|starts|thresholds [SPLIT] [--only TEXT] [-v]"
         ),
     }
 }

@@ -124,6 +124,7 @@ mod clipped;
 mod diagnose;
 mod kernel;
 mod latent;
+mod misfit;
 mod select;
 mod size;
 
@@ -141,7 +142,10 @@ use clipped::clipped_map;
 pub use diagnose::{KernelStart, estimate_kernel_from};
 use kernel::{clean_kernel, kernel_step, recentre};
 use latent::{l0_restore, salient_threshold};
-pub use select::{KernelEstimate, LOW_KERNEL_THRESHOLD, estimate_kernel_restored};
+pub use misfit::{MISFIT_LIMIT, kernel_misfit};
+pub use select::{
+    KernelEstimate, LOW_KERNEL_THRESHOLD, estimate_kernel_restored, kernel_uncertain,
+};
 use size::adaptive_kernel_size;
 pub use size::{estimate_blur_extent, gradient_autocorrelation};
 

@@ -21,6 +21,14 @@
 //!   → 1.5223. The samples of that sequence barely tell these answers apart (0.06 %): an
 //!   observation limit of a camera that is nearly white at half its irradiance range, not a
 //!   basin the fit misses.
+//! * the held-out `eval#6` (`DIAG_E6=1`; f(0.5) = 0.70, a ±1.37-stop sweep, the Voronoi
+//!   patches, 53 % clipped; vignette RMSE 0.0118 as shipped), run 2026-12-05 to tell which of
+//!   the two its miss is: started from the truth the refinement ends where the default fit
+//!   ends (cost 0.655779 against 0.655780; 0.0008 / 0.0117 / 0.84 %), with `v` = (−0.31,
+//!   −0.29, 0.26) against the truth's (−0.39, −0.02, −0.03): corners 0.09 too bright. The
+//!   samples favour that vignette; no start or gauge choice fixes it. Leaving out samples
+//!   across the patches' edges did (`examples/photometric_sweep.rs`: 0.0118 → 0.0011) but
+//!   cost other sequences, so the mixed-pixel samples are the bias to model next.
 //!
 //! Tried before finding that, not kept (tuning splits of `examples/photometric_sweep.rs`):
 //! * polishing the chosen gauge on all samples (fits at ±0.02 warm-started from the full fit,
@@ -159,7 +167,8 @@ fn truth_start(label: &str, cam: &SynthCamera, video: &AeVideo, nf: usize) {
     }
 }
 
-/// Truth start against the default fit on the sweep's scripted#7 and, with `DIAG_T6=1`, on
+/// Truth start against the default fit on the sweep's scripted#7 (`DIAG_E6=1`: the held-out
+/// eval#6 instead) and, with `DIAG_T6=1`, on
 /// tuning#6 (`SWEEP_DEBUG=1` on the sweep prints the settings below).
 #[test]
 #[ignore]
@@ -168,8 +177,51 @@ fn diag_truth_start() {
         let (cam, video) = tuning6();
         truth_start("tuning#6", &cam, &video, 200);
     }
+    if std::env::var_os("DIAG_E6").is_some() {
+        let (cam, video) = eval6();
+        truth_start("eval#6", &cam, &video, 200);
+        return;
+    }
     let (cam, video) = scripted7();
     truth_start("scripted#7", &cam, &video, 200);
+}
+
+/// The sweep's held-out eval#6 (printed by the sweep with `SWEEP_DEBUG=1`).
+fn eval6() -> (SynthCamera, AeVideo) {
+    let cam = SynthCamera {
+        width: 320,
+        height: 240,
+        response: ResponseModel::Emor {
+            c: [
+                0.27398748937767886,
+                -1.7895120926915127,
+                -0.4766036628507556,
+                0.12757009461925597,
+            ],
+        },
+        vignette: [
+            -0.38502018735535254,
+            -0.018365412312493314,
+            -0.03328533431202193,
+        ],
+        shot: 2e-4,
+        read: 1.5e-3,
+        sixteen_bit: false,
+        seed: 1006,
+    };
+    let video = AeVideo {
+        program: ExposureProgram::Sweep {
+            stops: 1.3688338100872854,
+            period: 60.10004433535174,
+            flicker: 0.03,
+        },
+        scene: SceneForm::Patches,
+        mid: 0.084289128797821,
+        stops: 7.448915059350158,
+        speed: 0.7703501811390568,
+        ..AeVideo::default()
+    };
+    (cam, video)
 }
 
 /// The sweep's tuning#6 at 320×240 (printed by the sweep with `SWEEP_DEBUG=1`).
