@@ -274,17 +274,6 @@ pub struct DeblurOutput {
     /// For `blind` without a fixed threshold: how far the two candidate kernels agree
     /// ([`super::kernel_agreement`]); below [`super::UNCERTAIN_AGREEMENT`] the kernel is doubtful.
     pub kernel_agreement: Option<f64>,
-    /// For `blind` without a fixed threshold: the kept kernel's [`super::kernel_misfit`];
-    /// above [`super::MISFIT_LIMIT`] the kernel is doubtful.
-    pub kernel_misfit: Option<f64>,
-}
-
-impl DeblurOutput {
-    /// Whether the blind kernel is doubtful ([`super::kernel_uncertain`]); `None` when neither
-    /// warning sign was measured (other methods, or a fixed `kernel_threshold`).
-    pub fn kernel_uncertain(&self) -> Option<bool> {
-        super::kernel_uncertain(self.kernel_agreement, self.kernel_misfit)
-    }
 }
 
 /// Deblurs an 8/16-bit (or float) grey, grey+alpha, RGB or RGBA image; the result has the same
@@ -304,7 +293,6 @@ pub fn deblur_image(
     let mut luma_restored: Option<Plane> = None;
     let mut kernel_threshold: Option<f64> = None;
     let mut kernel_agreement: Option<f64> = None;
-    let mut kernel_misfit: Option<f64> = None;
     let psf = match params.method {
         DeblurMethod::Wiener | DeblurMethod::RichardsonLucy | DeblurMethod::Tv => params
             .psf
@@ -315,7 +303,6 @@ pub fn deblur_image(
             luma_restored = e.restored.filter(|_| split.color.len() == 1);
             kernel_threshold = Some(e.threshold);
             kernel_agreement = e.agreement;
-            kernel_misfit = e.misfit;
             e.psf
         }
         DeblurMethod::BlindRl => {
@@ -382,7 +369,6 @@ pub fn deblur_image(
         method: params.method,
         kernel_threshold,
         kernel_agreement,
-        kernel_misfit,
     })
 }
 

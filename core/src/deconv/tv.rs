@@ -77,14 +77,10 @@ impl TvParams {
     }
 }
 
-/// Smallest noise σ assumed for a photo (normalised intensity, about 0.8 grey levels): 8-bit
-/// quantisation and estimator bias on clean images would otherwise read as no noise.
-pub(crate) const MIN_NOISE_SIGMA: f64 = 0.003;
-
-/// The TV weight for a blurred image: `σ̂² / b` (see [`GRADIENT_SCALE`]), with σ̂ at least
-/// [`MIN_NOISE_SIGMA`] so that clean images do not switch the prior off.
+/// The TV weight for a blurred image: `σ̂² / b` (see [`GRADIENT_SCALE`]), with σ̂ at least 0.003
+/// so that 8-bit quantisation and estimator bias on clean images do not switch the prior off.
 pub fn auto_tv_lambda(img: &Plane) -> f64 {
-    let s = estimate_noise_sigma(img).max(MIN_NOISE_SIGMA);
+    let s = estimate_noise_sigma(img).max(0.003);
     s * s / GRADIENT_SCALE
 }
 

@@ -124,7 +124,6 @@ mod clipped;
 mod diagnose;
 mod kernel;
 mod latent;
-mod misfit;
 mod select;
 mod size;
 
@@ -142,10 +141,7 @@ use clipped::clipped_map;
 pub use diagnose::{KernelStart, estimate_kernel_from};
 use kernel::{clean_kernel, kernel_step, recentre};
 use latent::{l0_restore, salient_threshold};
-pub use misfit::{MISFIT_LIMIT, kernel_misfit};
-pub use select::{
-    KernelEstimate, LOW_KERNEL_THRESHOLD, estimate_kernel_restored, kernel_uncertain,
-};
+pub use select::{KernelEstimate, LOW_KERNEL_THRESHOLD, estimate_kernel_restored};
 use size::adaptive_kernel_size;
 pub use size::{estimate_blur_extent, gradient_autocorrelation};
 

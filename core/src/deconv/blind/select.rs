@@ -13,7 +13,6 @@ use super::super::ops::SparseKernel;
 use super::super::tv::tv_deconv;
 use super::super::{Plane, Psf};
 use super::agreement::{AGREEMENT_SHIFT, kernel_agreement};
-use super::misfit::kernel_misfit;
 use super::{BlindParams, DEFAULT_KERNEL_THRESHOLD};
 use crate::error::CoreResult;
 use crate::progress::Progress;
@@ -36,31 +35,6 @@ pub struct KernelEstimate {
     /// [`kernel_agreement`] of the two candidate kernels when both were estimated (`None` with
     /// a fixed threshold); below [`super::UNCERTAIN_AGREEMENT`] the kernel is doubtful.
     pub agreement: Option<f64>,
-    /// [`kernel_misfit`] of the kept kernel and its restoration (`None` with a fixed
-    /// threshold, where no restoration is made here); above [`super::MISFIT_LIMIT`] the
-    /// kernel is doubtful.
-    pub misfit: Option<f64>,
-}
-
-impl KernelEstimate {
-    /// Whether either warning sign is up: the two candidates disagree
-    /// ([`super::UNCERTAIN_AGREEMENT`]) or the kept kernel does not explain the photo
-    /// ([`super::MISFIT_LIMIT`]). `None` with a fixed threshold (neither is measured).
-    pub fn uncertain(&self) -> Option<bool> {
-        kernel_uncertain(self.agreement, self.misfit)
-    }
-}
-
-/// The rule of [`KernelEstimate::uncertain`] on the two measures, for callers that carry them
-/// separately.
-pub fn kernel_uncertain(agreement: Option<f64>, misfit: Option<f64>) -> Option<bool> {
-    match (agreement, misfit) {
-        (None, None) => None,
-        (a, m) => Some(
-            a.is_some_and(|a| a < super::UNCERTAIN_AGREEMENT)
-                || m.is_some_and(|m| m > super::MISFIT_LIMIT),
-        ),
-    }
 }
 
 /// [`super::estimate_kernel`], with the threshold used and, when there was a choice, the
@@ -76,7 +50,6 @@ pub fn estimate_kernel_restored(
             threshold,
             restored: None,
             agreement: None,
-            misfit: None,
         });
     }
     // Each candidate: its kernel, its restoration and the blind score of the pair.
@@ -94,7 +67,6 @@ pub fn estimate_kernel_restored(
         let image = tv_deconv(img, &psf, &params.final_tv, &part)?;
         progress.check()?;
         let score = selection_score(img, &image, &psf);
-        let misfit = Some(kernel_misfit(img, &image, &psf));
         let restored = Some(image);
         Ok((
             score,
@@ -103,7 +75,6 @@ pub fn estimate_kernel_restored(
                 threshold,
                 restored,
                 agreement: None,
-                misfit,
             },
         ))
     };
@@ -158,12 +129,6 @@ const SHARPNESS_BORDER: usize = 15;
 /// of 32 and captured 18 → 22; the mean log error ratio fell on all five. The residual alone
 /// picks 5 % too rarely (Levin re-blurred 24 of 32), the sparsity alone too often (TUNE 17).
 pub(super) fn selection_score(y: &Plane, x: &Plane, k: &Psf) -> f64 {
-    reblur_residual(y, x, k) * normalised_sparsity(x)
-}
-
-/// Mean squared re-blur residual `(k ⊛ x − y)²` over the pixels whose kernel footprint lies
-/// inside the photo (all pixels when the photo is too small for such an interior).
-pub(super) fn reblur_residual(y: &Plane, x: &Plane, k: &Psf) -> f64 {
     let (w, h) = (y.width, y.height);
     let reblurred = {
         let taps = SparseKernel::new(k.width, k.height, |kx, ky| k.at(kx, ky));
@@ -188,12 +153,6 @@ pub(super) fn reblur_residual(y: &Plane, x: &Plane, k: &Psf) -> f64 {
             })
         })
         .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-    res / n.max(1) as f64
-}
-
-/// `Σ|∇x| / ‖∇x‖₂` of `x` away from its borders ([`SHARPNESS_BORDER`]).
-fn normalised_sparsity(x: &Plane) -> f64 {
-    let (w, h) = (x.width, x.height);
     let b = if h > 2 * SHARPNESS_BORDER + 1 && w > 2 * SHARPNESS_BORDER + 1 {
         SHARPNESS_BORDER
     } else {
@@ -209,7 +168,8 @@ fn normalised_sparsity(x: &Plane) -> f64 {
             })
         })
         .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
-    l1 / l2.sqrt().max(1e-12)
+    let residual = res / n.max(1) as f64;
+    residual * l1 / l2.sqrt().max(1e-12)
 }
 
 #[cfg(test)]

@@ -10,7 +10,7 @@
 use std::io::Cursor;
 
 use caliper_core::Progress;
-use caliper_core::deconv::{DeblurParams, deblur_image, psf_png};
+use caliper_core::deconv::{DeblurParams, UNCERTAIN_AGREEMENT, deblur_image, psf_png};
 use caliper_core::io::ImageLimits;
 use image::{DynamicImage, ImageFormat};
 use serde_json::{Value, json};
@@ -211,8 +211,7 @@ impl Kind for Deblur {
 }
 
 /// The document's `quality`: how many images, the method, and for `blind` how many kernels
-/// came out uncertain (the two candidate kernels disagree, see `kernel.agreement`, or the kept
-/// one does not explain the photo, see `kernel.misfit`).
+/// came out uncertain (the two candidate kernels disagree, see `kernel.agreement`).
 pub(crate) fn quality(images: &[Value], p: &DeblurParams) -> Value {
     let mut q = json!({"images": images.len(), "method": p.method});
     if images
@@ -276,16 +275,9 @@ pub(crate) fn restore(
         kernel["cleaning_threshold"] = json!(t);
     }
     if let Some(a) = out.kernel_agreement {
-        // How closely the two blind candidates agree (low: the photo does not pin the kernel).
+        // The two blind candidates disagree: the kernel (and so the restoration) is doubtful.
         kernel["agreement"] = json!(a);
-    }
-    if let Some(m) = out.kernel_misfit {
-        // How far the restoration fails to explain the photo, in units of its noise variance.
-        kernel["misfit"] = json!(m);
-    }
-    if let Some(u) = out.kernel_uncertain() {
-        // Either sign is up: the kernel (and so the restoration) is doubtful.
-        kernel["uncertain"] = json!(u);
+        kernel["uncertain"] = json!(a < UNCERTAIN_AGREEMENT);
     }
     Ok(json!({
         "artifact": out_name,
