@@ -186,29 +186,36 @@ fn diag_truth_start() {
     truth_start("scripted#7", &cam, &video, 200);
 }
 
-/// The sweep's held-out eval#6 (printed by the sweep with `SWEEP_DEBUG=1`).
-fn eval6() -> (SynthCamera, AeVideo) {
-    let cam = SynthCamera {
+/// The sweep's 320×240 camera with an EMoR response `c`, vignetting `v` and noise seed.
+fn sweep_camera(c: [f64; 4], v: [f64; 3], seed: u64) -> SynthCamera {
+    SynthCamera {
         width: 320,
         height: 240,
-        response: ResponseModel::Emor {
-            c: [
-                0.27398748937767886,
-                -1.7895120926915127,
-                -0.4766036628507556,
-                0.12757009461925597,
-            ],
-        },
-        vignette: [
+        response: ResponseModel::Emor { c },
+        vignette: v,
+        shot: 2e-4,
+        read: 1.5e-3,
+        sixteen_bit: false,
+        seed,
+    }
+}
+
+/// The sweep's held-out eval#6 (printed by the sweep with `SWEEP_DEBUG=1`).
+fn eval6() -> (SynthCamera, AeVideo) {
+    let cam = sweep_camera(
+        [
+            0.27398748937767886,
+            -1.7895120926915127,
+            -0.4766036628507556,
+            0.12757009461925597,
+        ],
+        [
             -0.38502018735535254,
             -0.018365412312493314,
             -0.03328533431202193,
         ],
-        shot: 2e-4,
-        read: 1.5e-3,
-        sixteen_bit: false,
-        seed: 1006,
-    };
+        1006,
+    );
     let video = AeVideo {
         program: ExposureProgram::Sweep {
             stops: 1.3688338100872854,
@@ -226,27 +233,20 @@ fn eval6() -> (SynthCamera, AeVideo) {
 
 /// The sweep's tuning#6 at 320×240 (printed by the sweep with `SWEEP_DEBUG=1`).
 fn tuning6() -> (SynthCamera, AeVideo) {
-    let cam = SynthCamera {
-        width: 320,
-        height: 240,
-        response: ResponseModel::Emor {
-            c: [
-                -6.603167792999848,
-                -1.7904388989964364,
-                0.14608954715918204,
-                -0.13118363638689295,
-            ],
-        },
-        vignette: [
+    let cam = sweep_camera(
+        [
+            -6.603167792999848,
+            -1.7904388989964364,
+            0.14608954715918204,
+            -0.13118363638689295,
+        ],
+        [
             -0.49586462096087847,
             -0.0191719753863131,
             -0.0446456660937703,
         ],
-        shot: 2e-4,
-        read: 1.5e-3,
-        sixteen_bit: false,
-        seed: 6,
-    };
+        6,
+    );
     let video = AeVideo {
         program: ExposureProgram::AutoExposure {
             target: 0.32066853716940813,
@@ -263,27 +263,20 @@ fn tuning6() -> (SynthCamera, AeVideo) {
 
 /// The sweep's scripted#7 (f(0.5) = 0.90, ±0.5-stop steps held 20 frames, the Mondrian).
 fn scripted7() -> (SynthCamera, AeVideo) {
-    let cam = SynthCamera {
-        width: 320,
-        height: 240,
-        response: ResponseModel::Emor {
-            c: [
-                -1.9279727095604478,
-                1.8571685799486695,
-                -0.2234741327494059,
-                -0.770088607950615,
-            ],
-        },
-        vignette: [
+    let cam = sweep_camera(
+        [
+            -1.9279727095604478,
+            1.8571685799486695,
+            -0.2234741327494059,
+            -0.770088607950615,
+        ],
+        [
             -0.43261656183464037,
             0.0006170588710067593,
             -0.017651946535472196,
         ],
-        shot: 2e-4,
-        read: 1.5e-3,
-        sixteen_bit: false,
-        seed: 3007,
-    };
+        3007,
+    );
     let video = AeVideo {
         program: ExposureProgram::Steps {
             stops: 0.5049042475579468,
