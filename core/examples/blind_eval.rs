@@ -60,10 +60,11 @@
 //!
 //! Environment: `CALIPER_BLIND_DATA` (data root), `BLIND_NOISE=σ` (noise of the generated
 //! cases instead of 0.01; the splits' published numbers are all at 0.01), `BLIND_KS` /
-//! `BLIND_ITERS` (override `kernel_size` / `iterations_per_level`, for experiments), `BLIND_THRESHOLD` (override
-//! `kernel_threshold`: one threshold, no choice), `BLIND_PAIR=A,B` (with `thresholds`: the
-//! two thresholds compared), `BLIND_ORACLE=F` (window = F × the
-//! true kernel side: the ceiling of size estimation), `BLIND_NOSAT=1` (every pixel linear in
+//! `BLIND_ITERS` / `BLIND_REG` / `BLIND_LAMBDA` (override `kernel_size` /
+//! `iterations_per_level` / `kernel_reg` / `lambda_grad`, for experiments),
+//! `BLIND_THRESHOLD` (override `kernel_threshold`: one threshold, no choice), `BLIND_PAIR=A,B`
+//! (with `thresholds`: the two thresholds compared), `BLIND_ORACLE=F` (window = F × the true
+//! kernel side: the ceiling of size estimation), `BLIND_NOSAT=1` (every pixel linear in
 //! both solves: `saturation: null`), `BLIND_SAT=1` (over-exposed variant of
 //! the split: 1–6 % of each scene above the white level, see [`overexpose`]), `BLIND_SAT=2`
 //! (small light sources far above white, see [`light_sources`]), `BLIND_PROFILES=1` (with `size`: print the
@@ -679,6 +680,15 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         .and_then(|v| v.parse().ok())
     {
         params.kernel_threshold = Some(t);
+    }
+    if let Some(g) = std::env::var("BLIND_REG").ok().and_then(|v| v.parse().ok()) {
+        params.kernel_reg = g;
+    }
+    if let Some(l) = std::env::var("BLIND_LAMBDA")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        params.lambda_grad = l;
     }
     let fixed = match std::env::var("BLIND_FIXED").as_deref() {
         Ok("finest") => Some(KernelStart::Finest),
