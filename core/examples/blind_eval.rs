@@ -40,7 +40,7 @@
 //! * **EVAL3**: the same with seeds from 21 000 001 (first run 2026-12-05: the shipped
 //!   estimator and the `kernel.uncertain` flag, both chosen without it).
 //! * **EVAL4**: the same with seeds from 31 000 001 (first run 2026-12-05: the shipped
-//!   estimator and the `kernel.misfit` warning, both chosen without it).
+//!   estimator, the agreement flag and the misfit experiment, all chosen without it).
 //! * **EVAL5**: the same with seeds from 41 000 001, unused: for the next confirmation.
 //! * **LEVIN** (`levin`, `levin-synth`): Levin et al. 2009's real camera-shake set (four
 //!   poster photos × eight measured kernels, 13–27 px), read from `CALIPER_LEVIN_DIR` (not
@@ -94,6 +94,12 @@ use caliper_core::progress::NoProgress;
 const SIDE: usize = 255;
 const CONTEXT: usize = 24;
 const NOISE: f64 = 0.01;
+const BORDER: usize = 15;
+const MAX_SHIFT: usize = 8;
+/// Kernel side (px, the `true` column) that splits the summary into small and large kernels
+/// (the large ones are where the estimate collapses or scatters): side ≤ 29 is a generator
+/// extent ≤ 27 px (the number that ends the case name).
+const SIZE_SPLIT: usize = 29;
 
 /// The noise σ of the generated cases: [`NOISE`], or `BLIND_NOISE` (an experiment knob: how
 /// the estimator and its warning signs behave on cleaner or noisier photos).
@@ -107,12 +113,6 @@ fn noise() -> f64 {
             .unwrap_or(NOISE)
     })
 }
-const BORDER: usize = 15;
-const MAX_SHIFT: usize = 8;
-/// Kernel side (px, the `true` column) that splits the summary into small and large kernels
-/// (the large ones are where the estimate collapses or scatters): side ≤ 29 is a generator
-/// extent ≤ 27 px (the number that ends the case name).
-const SIZE_SPLIT: usize = 29;
 
 #[path = "common/rng.rs"]
 mod rng;
@@ -1057,9 +1057,11 @@ fn starts(split: Split) {
 }
 
 /// Experiment: the kernel at two cleaning thresholds (the default and 0.05) per case, with
-/// the true ratio of each and blind selection criteria ([`criteria`], the normalised sparsity
-/// `Σ|∇x| / ‖∇x‖₂` of the restoration, the kernel's support count), for offline analysis of
-/// whether a blind criterion picks the better threshold.
+/// the true ratio of each and blind selection criteria, for offline analysis of whether a
+/// blind criterion picks the better threshold or flags a wrong kernel. One line per candidate,
+/// `T case threshold window ratio residual tv l0 sparsity support border effective misfit`
+/// ([`criteria`]; the normalised sparsity `Σ|∇x| / ‖∇x‖₂` of the restoration; [`kernel_shape`];
+/// [`misfit`]), then `A case agreement σ̂` ([`kernel_agreement`], [`estimate_noise_sigma`]).
 fn thresholds(split: Split) {
     let root = data_root();
     // `BLIND_PAIR=A,B` tries other thresholds, `BLIND_KS` fixes the window (experiments).
@@ -1108,7 +1110,7 @@ fn thresholds(split: Split) {
                 "A {} {:.4} {:.6e}",
                 case.name,
                 kernel_agreement(&psfs[0], &psfs[1], AGREEMENT_SHIFT),
-                noise_sigma(&case.blurred)
+                estimate_noise_sigma(&case.blurred)
             );
         }
     }
@@ -1141,20 +1143,6 @@ fn kernel_shape(k: &Psf) -> (f64, f64) {
         }
     }
     (edge, 1.0 / sq.max(1e-12))
-}
-
-/// Noise σ from the median absolute diagonal Haar detail (Donoho's MAD rule).
-fn noise_sigma(y: &Plane) -> f64 {
-    let mut d = Vec::new();
-    for py in (0..y.height - 1).step_by(2) {
-        for px in (0..y.width - 1).step_by(2) {
-            let v =
-                (y.at(px, py) - y.at(px + 1, py) - y.at(px, py + 1) + y.at(px + 1, py + 1)) / 2.0;
-            d.push(f64::from(v.abs()));
-        }
-    }
-    d.sort_by(f64::total_cmp);
-    d[d.len() / 2] / 0.6745
 }
 
 /// Blur-extent estimate against the truth's bounding box (entries >= 5 % of the max).
