@@ -9,7 +9,7 @@
 //! ```text
 //! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|eval2|eval3|eval4|eval5|levin|levin-synth|time [--only TEXT] [-v]
 //! cargo run -p caliper-core --release --example blind_eval -- size|size-tremor|size-texture|size-eval|starts
-//! cargo run -p caliper-core --release --example blind_eval -- thresholds tune|tremor|texture|levin|levin-synth
+//! cargo run -p caliper-core --release --example blind_eval -- thresholds tune|tremor|texture|levin|levin-synth|eval5
 //! ```
 //!
 //! Sharp images come from `CALIPER_BLIND_DATA` (default `../shared/data`, i.e. the shared data
@@ -696,9 +696,9 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         _ => None,
     };
     let mut ratios = Vec::new();
-    // (agreement of the two candidates, misfit of the kept one, ratio) of the cases that had
-    // two.
-    let mut warnings: Vec<(f64, f64, f64)> = Vec::new();
+    // (the shipped flag: agreement below the photo's threshold, misfit of the kept kernel,
+    // ratio) of the cases that had two candidates.
+    let mut warnings: Vec<(bool, f64, f64)> = Vec::new();
     let mut times = Vec::new();
     let mut per_source: Vec<(String, usize, usize)> = Vec::new();
     // Cases at ratio <= 3 and all cases, by true kernel side <= SIZE_SPLIT px and beyond.
@@ -842,8 +842,8 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
             print_kernels(&case.psf, &out.psf);
         }
         tally(&mut per_source, &mut by_size, &case, r);
-        if let Some(a) = est.agreement {
-            warnings.push((a, misfit(&case.blurred, &out.image, &out.psf), r));
+        if let (Some(a), Some(below)) = (est.agreement, est.uncertain_below) {
+            warnings.push((a < below, misfit(&case.blurred, &out.image, &out.psf), r));
         }
         ratios.push(r);
         times.push(dt);
@@ -854,22 +854,20 @@ fn run(split: Split, only: Option<&str>, verbose: bool) {
         .collect();
     println!("per source (<=3): {}", line.join(", "));
     // The shipped warning sign, then the misfit experiment alone and with it (see `misfit`).
-    type Sign = fn(&(f64, f64, f64)) -> bool;
+    type Sign = fn(&(bool, f64, f64)) -> bool;
     let signs: [(String, Sign); 3] = [
         (
-            format!("uncertain (agreement < {UNCERTAIN_AGREEMENT})"),
-            |w| w.0 < UNCERTAIN_AGREEMENT,
+            format!("uncertain (agreement < {UNCERTAIN_AGREEMENT} at σ̂ <= 0.01, lower above)"),
+            |w| w.0,
         ),
         (format!("misfit > {MISFIT_LIMIT} (experiment)"), |w| {
             w.1 > MISFIT_LIMIT
         }),
-        ("either (experiment)".into(), |w| {
-            w.0 < UNCERTAIN_AGREEMENT || w.1 > MISFIT_LIMIT
-        }),
+        ("either (experiment)".into(), |w| w.0 || w.1 > MISFIT_LIMIT),
     ];
     for (label, flagged) in signs.iter().filter(|_| !warnings.is_empty()) {
         let (on, off): (Vec<_>, Vec<_>) = warnings.iter().partition(|w| flagged(w));
-        let ok = |v: &[&(f64, f64, f64)]| v.iter().filter(|w| w.2 <= 3.0).count();
+        let ok = |v: &[&(bool, f64, f64)]| v.iter().filter(|w| w.2 <= 3.0).count();
         println!(
             "{label}: {} cases, {} at <=3; the others {}, {} at <=3",
             on.len(),
@@ -1228,6 +1226,7 @@ fn main() {
             Some("texture") => thresholds(Split::Texture),
             Some("levin") => thresholds(Split::Levin),
             Some("levin-synth") => thresholds(Split::LevinSynth),
+            Some("eval5") => thresholds(Split::Eval5),
             Some(other) => {
                 eprintln!("thresholds: {other}? tune|tremor|texture|levin|levin-synth")
             }

@@ -238,6 +238,8 @@ fn offline_deblur_writes_the_image_under_its_name_and_the_kernel() {
     let k = &doc["parameters"]["images"][0]["kernel"];
     let a = k["agreement"].as_f64().expect("agreement");
     assert!((0.0..=1.0).contains(&a), "{doc}");
+    // A clean photo gets the threshold chosen at low noise.
+    assert_eq!(k["uncertain_below"], json!(0.8), "{doc}");
     assert_eq!(k["uncertain"], json!(a < 0.8), "{doc}");
     assert_eq!(
         doc["quality"]["uncertain_kernels"],
@@ -248,7 +250,7 @@ fn offline_deblur_writes_the_image_under_its_name_and_the_kernel() {
     let k = &doc["parameters"]["images"][0]["kernel"];
     assert_eq!(k["cleaning_threshold"], json!(0.1), "{doc}");
     assert!(
-        k["agreement"].is_null() && k["uncertain"].is_null(),
+        k["agreement"].is_null() && k["uncertain"].is_null() && k["uncertain_below"].is_null(),
         "{doc}"
     );
     // A kernel file that is not a kernel: clear error, non-zero exit.
@@ -317,6 +319,7 @@ async fn blind_and_gyro_deblur_return_their_kernels() {
     let kernel = &doc["parameters"]["images"][0]["kernel"];
     let agreement = kernel["agreement"].as_f64().expect("agreement");
     assert!((0.0..=1.0).contains(&agreement), "{doc}");
+    assert_eq!(kernel["uncertain_below"], json!(0.8), "{doc}");
     assert_eq!(kernel["uncertain"], json!(agreement < 0.8), "{doc}");
     assert_eq!(doc["quality"]["uncertain_kernels"], json!(0), "{doc}");
     let k = kernel_of(&s, &id, "b").await;

@@ -272,8 +272,11 @@ pub struct DeblurOutput {
     /// the blind choice kept).
     pub kernel_threshold: Option<f64>,
     /// For `blind` without a fixed threshold: how far the two candidate kernels agree
-    /// ([`super::kernel_agreement`]); below [`super::UNCERTAIN_AGREEMENT`] the kernel is doubtful.
+    /// ([`super::kernel_agreement`]); below `kernel_uncertain_below` the kernel is doubtful.
     pub kernel_agreement: Option<f64>,
+    /// With `kernel_agreement`: the agreement below which the kernel counts as uncertain for
+    /// this photo's noise ([`super::uncertain_agreement`]).
+    pub kernel_uncertain_below: Option<f64>,
 }
 
 /// Deblurs an 8/16-bit (or float) grey, grey+alpha, RGB or RGBA image; the result has the same
@@ -293,6 +296,7 @@ pub fn deblur_image(
     let mut luma_restored: Option<Plane> = None;
     let mut kernel_threshold: Option<f64> = None;
     let mut kernel_agreement: Option<f64> = None;
+    let mut kernel_uncertain_below: Option<f64> = None;
     let psf = match params.method {
         DeblurMethod::Wiener | DeblurMethod::RichardsonLucy | DeblurMethod::Tv => params
             .psf
@@ -303,6 +307,7 @@ pub fn deblur_image(
             luma_restored = e.restored.filter(|_| split.color.len() == 1);
             kernel_threshold = Some(e.threshold);
             kernel_agreement = e.agreement;
+            kernel_uncertain_below = e.uncertain_below;
             e.psf
         }
         DeblurMethod::BlindRl => {
@@ -369,6 +374,7 @@ pub fn deblur_image(
         method: params.method,
         kernel_threshold,
         kernel_agreement,
+        kernel_uncertain_below,
     })
 }
 

@@ -11,8 +11,9 @@ use rayon::prelude::*;
 
 use super::super::ops::SparseKernel;
 use super::super::tv::tv_deconv;
+use super::super::wiener::estimate_noise_sigma;
 use super::super::{Plane, Psf};
-use super::agreement::{AGREEMENT_SHIFT, kernel_agreement};
+use super::agreement::{AGREEMENT_SHIFT, kernel_agreement, uncertain_agreement};
 use super::{BlindParams, DEFAULT_KERNEL_THRESHOLD};
 use crate::error::CoreResult;
 use crate::progress::Progress;
@@ -33,8 +34,11 @@ pub struct KernelEstimate {
     /// image itself need not solve it again.
     pub restored: Option<Plane>,
     /// [`kernel_agreement`] of the two candidate kernels when both were estimated (`None` with
-    /// a fixed threshold); below [`super::UNCERTAIN_AGREEMENT`] the kernel is doubtful.
+    /// a fixed threshold); below [`KernelEstimate::uncertain_below`] the kernel is doubtful.
     pub agreement: Option<f64>,
+    /// The agreement below which this photo's kernel counts as uncertain
+    /// ([`super::uncertain_agreement`] of its measured noise; `None` with a fixed threshold).
+    pub uncertain_below: Option<f64>,
 }
 
 /// [`super::estimate_kernel`], with the threshold used and, when there was a choice, the
@@ -50,6 +54,7 @@ pub fn estimate_kernel_restored(
             threshold,
             restored: None,
             agreement: None,
+            uncertain_below: None,
         });
     }
     // Each candidate: its kernel, its restoration and the blind score of the pair.
@@ -75,6 +80,7 @@ pub fn estimate_kernel_restored(
                 threshold,
                 restored,
                 agreement: None,
+                uncertain_below: None,
             },
         ))
     };
@@ -87,7 +93,12 @@ pub fn estimate_kernel_restored(
     ));
     // Ties and non-finite scores keep the default candidate.
     let kept = if low.0 < default.0 { low.1 } else { default.1 };
-    Ok(KernelEstimate { agreement, ..kept })
+    let uncertain_below = Some(uncertain_agreement(estimate_noise_sigma(img)));
+    Ok(KernelEstimate {
+        agreement,
+        uncertain_below,
+        ..kept
+    })
 }
 
 /// Reports one of `count` consecutive runs of the same steps as its share of a single bar, so
@@ -243,12 +254,21 @@ mod tests {
         // textured scene pins the kernel down, so they agree.
         let agreement = chosen.agreement.expect("two candidates");
         assert!((agreement - want_a).abs() < 1e-6, "{agreement} vs {want_a}");
+        // The threshold follows the photo's measured noise, within its measured range.
+        let below = chosen.uncertain_below.expect("a threshold");
+        let want_below = uncertain_agreement(estimate_noise_sigma(&blurred));
         assert!(
-            agreement >= super::super::UNCERTAIN_AGREEMENT,
-            "{agreement}"
+            (below - want_below).abs() < 1e-12,
+            "{below} vs {want_below}"
         );
+        assert!((0.45..=super::super::UNCERTAIN_AGREEMENT).contains(&below));
+        assert!(agreement >= below, "{agreement} < {below}");
         let fixed = estimate_kernel_restored(&blurred, &at(Some(0.2)), &NoProgress).expect("fixed");
         assert_eq!(fixed.threshold, 0.2);
-        assert!(fixed.restored.is_none() && fixed.agreement.is_none());
+        assert!(
+            fixed.restored.is_none()
+                && fixed.agreement.is_none()
+                && fixed.uncertain_below.is_none()
+        );
     }
 }

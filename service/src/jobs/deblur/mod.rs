@@ -10,7 +10,7 @@
 use std::io::Cursor;
 
 use caliper_core::Progress;
-use caliper_core::deconv::{DeblurParams, UNCERTAIN_AGREEMENT, deblur_image, psf_png};
+use caliper_core::deconv::{DeblurParams, deblur_image, psf_png};
 use caliper_core::io::ImageLimits;
 use image::{DynamicImage, ImageFormat};
 use serde_json::{Value, json};
@@ -274,10 +274,12 @@ pub(crate) fn restore(
         // Which of the blind estimates was kept (or the one asked for).
         kernel["cleaning_threshold"] = json!(t);
     }
-    if let Some(a) = out.kernel_agreement {
-        // The two blind candidates disagree: the kernel (and so the restoration) is doubtful.
+    if let (Some(a), Some(below)) = (out.kernel_agreement, out.kernel_uncertain_below) {
+        // The two blind candidates disagree more than this photo's noise explains: the kernel
+        // (and so the restoration) is doubtful.
         kernel["agreement"] = json!(a);
-        kernel["uncertain"] = json!(a < UNCERTAIN_AGREEMENT);
+        kernel["uncertain_below"] = json!(below);
+        kernel["uncertain"] = json!(a < below);
     }
     Ok(json!({
         "artifact": out_name,
