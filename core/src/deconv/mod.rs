@@ -41,7 +41,6 @@ mod tests;
 #[cfg(test)]
 mod tests_solvers;
 
-pub use blind::AGREEMENT_NOISE_SLOPE;
 pub use blind::{
     AGREEMENT_SHIFT, BlindOutput, BlindParams, DEFAULT_KERNEL_THRESHOLD, KernelEstimate,
     KernelStart, LOW_KERNEL_THRESHOLD, UNCERTAIN_AGREEMENT, blind_deconv, estimate_blur_extent,

@@ -41,12 +41,18 @@ pub const UNCERTAIN_AGREEMENT: f64 = 0.8;
 /// σ = 0.02, it flags 16 of 48 cases, 4 of them at error ratio ≤ 3 (the others: 26 of 32),
 /// where 0.8 flagged 41, 24 passing (`core/benches/deconv_set.md`).
 pub fn uncertain_agreement(noise_sigma: f64) -> f64 {
-    let excess = (noise_sigma - 0.01).clamp(0.0, 0.01);
+    let excess = noise_sigma.clamp(NOISE_CHOSEN_AT, NOISE_MEASURED_TO) - NOISE_CHOSEN_AT;
     UNCERTAIN_AGREEMENT - AGREEMENT_NOISE_SLOPE * excess
 }
 
-/// Fall of [`uncertain_agreement`] per unit of noise σ̂ above 0.01.
-pub const AGREEMENT_NOISE_SLOPE: f64 = 35.0;
+/// Fall of [`uncertain_agreement`] per unit of noise σ̂ above [`NOISE_CHOSEN_AT`].
+const AGREEMENT_NOISE_SLOPE: f64 = 35.0;
+
+/// Noise σ of the splits [`UNCERTAIN_AGREEMENT`] was chosen on.
+const NOISE_CHOSEN_AT: f64 = 0.01;
+
+/// Highest noise σ the threshold was measured at; above it [`uncertain_agreement`] stays put.
+const NOISE_MEASURED_TO: f64 = 0.02;
 
 /// Integer shifts, in px, over which [`kernel_agreement`] aligns the two kernels: both are
 /// re-centred on their centroid, so their paths can differ in position only by the mass

@@ -136,10 +136,7 @@ use super::wiener::gradient_power;
 use super::{PadLayout, Plane, Psf};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
-pub use agreement::{
-    AGREEMENT_NOISE_SLOPE, AGREEMENT_SHIFT, UNCERTAIN_AGREEMENT, kernel_agreement,
-    uncertain_agreement,
-};
+pub use agreement::{AGREEMENT_SHIFT, UNCERTAIN_AGREEMENT, kernel_agreement, uncertain_agreement};
 use clipped::clipped_map;
 pub use diagnose::{KernelStart, estimate_kernel_from};
 use kernel::{clean_kernel, kernel_step, recentre};
