@@ -35,7 +35,7 @@ pub const UNCERTAIN_AGREEMENT: f64 = 0.8;
 /// photo pins the kernel down: with TUNE regenerated at σ = 0.02 (`examples/blind_eval.rs`,
 /// `BLIND_NOISE`) passing cases agree at 0.26–0.85 and a fixed 0.8 flags 43 of 44 cases, 21
 /// of them passing. So the threshold is [`UNCERTAIN_AGREEMENT`] up to σ̂ = 0.01 (the level it
-/// was chosen at) and falls by [`AGREEMENT_NOISE_SLOPE`] per unit of σ̂ above, to 0.45 at
+/// was chosen at) and falls by `AGREEMENT_NOISE_SLOPE` (35) per unit of σ̂ above, to 0.45 at
 /// σ̂ = 0.02; beyond the noise it was measured at it is not extrapolated. Chosen on TUNE at
 /// σ = 0.015 and TUNE and TREMOR at σ = 0.02; on EVAL5, held out and regenerated at
 /// σ = 0.02, it flags 16 of 48 cases, 4 of them at error ratio ≤ 3 (the others: 26 of 32),
