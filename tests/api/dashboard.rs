@@ -80,7 +80,11 @@ async fn devices_are_listed_in_pages_with_their_latest_documents() {
     // Any cursor the spec's pattern admits is a key to list after, even one that is no serial.
     let (st, p) = s.get_json("/v1/devices?cursor=..").await;
     assert_eq!(st, 200, "{p}");
-    assert_eq!(serials(&p), ["cam-a", "cam-b", "cam-d", "cam-e", "imu-c"], "{p}");
+    assert_eq!(
+        serials(&p),
+        ["cam-a", "cam-b", "cam-d", "cam-e", "imu-c"],
+        "{p}"
+    );
     s.stop().await;
 }
 
