@@ -7,9 +7,9 @@
 //! editing images.
 //!
 //! ```text
-//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|eval2|eval3|eval4|eval5|eval6|levin|levin-synth|time [--only TEXT] [-v]
+//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|eval2|eval3|eval4|eval5|eval6|eval7|levin|levin-synth|time [--only TEXT] [-v]
 //! cargo run -p caliper-core --release --example blind_eval -- size|size-tremor|size-texture|size-eval|starts
-//! cargo run -p caliper-core --release --example blind_eval -- thresholds tune|tremor|texture|levin|levin-synth|eval5|eval6
+//! cargo run -p caliper-core --release --example blind_eval -- thresholds tune|tremor|texture|levin|levin-synth|eval5|eval6|eval7
 //! ```
 //!
 //! Sharp images come from `CALIPER_BLIND_DATA` (default `../shared/data`, i.e. the shared data
@@ -43,7 +43,9 @@
 //!   estimator, the agreement flag and the misfit experiment, all chosen without it).
 //! * **EVAL5**: the same with seeds from 41 000 001 (first run 2026-12-05 at σ = 0.015 and
 //!   0.02: the noise-dependent agreement threshold; then at σ = 0.01 and 0.003: the misfit).
-//! * **EVAL6**: the same with seeds from 51 000 001, unused: for the next confirmation.
+//! * **EVAL6**: the same with seeds from 51 000 001 (first run 2026-12-05 at σ = 0.006: the
+//!   misfit, not kept; then at σ = 0.01: the shipped estimator).
+//! * **EVAL7**: the same with seeds from 61 000 001, unused: for the next confirmation.
 //! * **LEVIN** (`levin`, `levin-synth`): Levin et al. 2009's real camera-shake set (four
 //!   poster photos × eight measured kernels, 13–27 px), read from `CALIPER_LEVIN_DIR` (not
 //!   shipped; see `common/levin.rs`): the captured blurred images, or the sharp photos blurred
@@ -426,8 +428,10 @@ enum Split {
     Eval4,
     /// The same with seeds from 41 000 001 (used 2026-12-05, at four noise levels).
     Eval5,
-    /// The same with seeds from 51 000 001: the next confirmation split, unused until then.
+    /// The same with seeds from 51 000 001 (used 2026-12-05, at two noise levels).
     Eval6,
+    /// The same with seeds from 61 000 001: the next confirmation split, unused until then.
+    Eval7,
     /// Levin et al. 2009's real camera-shake set from `CALIPER_LEVIN_DIR` (never tuned on):
     /// the captured blurred images ([`levin`]).
     Levin,
@@ -461,7 +465,13 @@ fn sources(root: &Path, split: Split) -> Vec<(String, PathBuf)> {
                 out.push((n.to_string(), sk.join(format!("{n}.png"))));
             }
         }
-        Split::Eval | Split::Eval2 | Split::Eval3 | Split::Eval4 | Split::Eval5 | Split::Eval6 => {
+        Split::Eval
+        | Split::Eval2
+        | Split::Eval3
+        | Split::Eval4
+        | Split::Eval5
+        | Split::Eval6
+        | Split::Eval7 => {
             for n in [
                 "brick",
                 "coins",
@@ -523,6 +533,7 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
         Split::Eval4 => 31_000_001,
         Split::Eval5 => 41_000_001,
         Split::Eval6 => 51_000_001,
+        Split::Eval7 => 61_000_001,
     };
     let mut srcs: Vec<(String, Option<textures::Source>)> = sources(root, split)
         .into_iter()
@@ -563,6 +574,7 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
                     | Split::Eval4
                     | Split::Eval5
                     | Split::Eval6
+                    | Split::Eval7
             ) && j % 2 == 1
             {
                 ("imp", shake_impulsive(&mut rng, extent))
@@ -1231,6 +1243,7 @@ fn main() {
         Some("eval4") => run(Split::Eval4, only, verbose),
         Some("eval5") => run(Split::Eval5, only, verbose),
         Some("eval6") => run(Split::Eval6, only, verbose),
+        Some("eval7") => run(Split::Eval7, only, verbose),
         Some("levin") => run(Split::Levin, only, verbose),
         Some("levin-synth") => run(Split::LevinSynth, only, verbose),
         Some("time") => time(),
@@ -1247,6 +1260,7 @@ fn main() {
             Some("levin-synth") => thresholds(Split::LevinSynth),
             Some("eval5") => thresholds(Split::Eval5),
             Some("eval6") => thresholds(Split::Eval6),
+            Some("eval7") => thresholds(Split::Eval7),
             Some(other) => {
                 eprintln!("thresholds: {other}? tune|tremor|texture|levin|levin-synth")
             }
@@ -1255,7 +1269,7 @@ fn main() {
         Some("size-texture") => sizes(Split::Texture),
         Some("size-eval") => sizes(Split::Eval),
         _ => eprintln!(
-            "usage: blind_eval tune|tremor|texture|eval|eval2|eval3|eval4|eval5|eval6|levin|levin-synth|time|size|size-tremor|size-texture|size-eval|starts|thresholds [SPLIT] [--only TEXT] [-v]"
+            "usage: blind_eval tune|tremor|texture|eval|eval2|eval3|eval4|eval5|eval6|eval7|levin|levin-synth|time|size|size-tremor|size-texture|size-eval|starts|thresholds [SPLIT] [--only TEXT] [-v]"
         ),
     }
 }

@@ -7,9 +7,9 @@
 //! the one kept is then usually wrong as well. Measured on the tuning splits of
 //! `examples/blind_eval.rs` (TUNE, TREMOR, TEXTURE and Levin et al.'s two sets, 188 cases):
 //! with agreement below [`UNCERTAIN_AGREEMENT`] 34 cases, 8 of them (24 %) at error ratio ≤ 3;
-//! at or above it 154 cases, 103 (67 %) at ratio ≤ 3, against 59 % over all. On the four
-//! held-out splits (EVAL to EVAL4; 192 cases) 47 are flagged, 8 of them at ratio ≤ 3,
-//! against 92 of the other 145. The sign misses the failures where both runs collapse onto
+//! at or above it 154 cases, 103 (67 %) at ratio ≤ 3, against 59 % over all. On the six
+//! held-out splits (EVAL to EVAL6; 288 cases) 69 are flagged, 15 of them at ratio ≤ 3,
+//! against 144 of the other 219. The sign misses the failures where both runs collapse onto
 //! the same wrong kernel (all of Levin et al.'s captured failures), so a kernel that passes
 //! is not thereby right.
 //!
@@ -20,7 +20,9 @@
 //! (the better of the two passes on 8 of 34), so the flag cannot steer the choice either.
 //! A second sign, the kept restoration's re-blur residual over the photo's noise variance,
 //! caught 3 more held-out failures at σ = 0.01 but fired on good restorations of cleaner
-//! photos (σ = 0.003) as often as on bad ones, so it is not shipped
+//! photos (σ = 0.003) as often as on bad ones; with a signal term in the denominator it
+//! flagged no passing case on the tuning splits at three noise levels but held out added 2
+//! caught failures and 1 false alarm over 192 cases, so it is not shipped either
 //! (`core/benches/deconv_set.md`).
 
 use super::super::Psf;
