@@ -439,6 +439,22 @@ enum Split {
     LevinSynth,
 }
 
+impl Split {
+    /// Whether this is one of the held-out splits made with EVAL's photos and generators.
+    fn is_eval(self) -> bool {
+        matches!(
+            self,
+            Split::Eval
+                | Split::Eval2
+                | Split::Eval3
+                | Split::Eval4
+                | Split::Eval5
+                | Split::Eval6
+                | Split::Eval7
+        )
+    }
+}
+
 fn sources(root: &Path, split: Split) -> Vec<(String, PathBuf)> {
     let sk = root.join("blur/skimage");
     let mut out = Vec::new();
@@ -465,13 +481,9 @@ fn sources(root: &Path, split: Split) -> Vec<(String, PathBuf)> {
                 out.push((n.to_string(), sk.join(format!("{n}.png"))));
             }
         }
-        Split::Eval
-        | Split::Eval2
-        | Split::Eval3
-        | Split::Eval4
-        | Split::Eval5
-        | Split::Eval6
-        | Split::Eval7 => {
+        Split::Levin | Split::LevinSynth => {}
+        // The held-out splits (`Split::is_eval`): EVAL's photos.
+        _ => {
             for n in [
                 "brick",
                 "coins",
@@ -489,7 +501,6 @@ fn sources(root: &Path, split: Split) -> Vec<(String, PathBuf)> {
                 ));
             }
         }
-        Split::Levin | Split::LevinSynth => {}
     }
     out
 }
@@ -566,17 +577,7 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
             let seed = base + 10 * si as u64 + j;
             let mut rng = Rng::new(seed);
             let extent = 11.0 + 30.0 * (j as f64 + rng.uniform()) / 4.0;
-            let (gen_name, psf) = if matches!(
-                split,
-                Split::Eval
-                    | Split::Eval2
-                    | Split::Eval3
-                    | Split::Eval4
-                    | Split::Eval5
-                    | Split::Eval6
-                    | Split::Eval7
-            ) && j % 2 == 1
-            {
+            let (gen_name, psf) = if split.is_eval() && j % 2 == 1 {
                 ("imp", shake_impulsive(&mut rng, extent))
             } else if split == Split::Tremor {
                 ("trem", shake_tremor(&mut rng, extent))

@@ -241,13 +241,40 @@ async fn refuse_declared_oversize(
             "payload_too_large",
             format!("the declared body of {n} bytes exceeds the limit of {limit} bytes"),
         );
+        // A body that is only somewhat too large is read and dropped first, so that the
+        // client has finished writing when the answer comes. Closing with unread bytes makes
+        // the kernel reset the connection, and the client then sees a broken pipe or a reset
+        // instead of this 413. Anything larger, or slower, is cut off.
+        if n <= (limit as u64).saturating_add(LINGER_BYTES) {
+            let _ = tokio::time::timeout(LINGER_TIME, discard(req.into_body(), n)).await;
+        }
         let mut resp = e.into_response();
-        // The body is not read: the connection cannot be reused.
+        // The connection cannot be reused: the body may not have been read to its end.
         resp.headers_mut()
             .insert(header::CONNECTION, HeaderValue::from_static("close"));
         return resp;
     }
     next.run(req).await
+}
+
+/// How far beyond its route's limit a declared body is still read (and dropped) before the
+/// 413, so that ordinary clients read the answer instead of a reset connection.
+const LINGER_BYTES: u64 = 8 << 20;
+
+/// How long reading such a body may take before the 413 is sent anyway.
+const LINGER_TIME: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// Reads and drops up to `max` bytes of `body`, stopping at its end or at an error.
+async fn discard(body: axum::body::Body, max: u64) {
+    use futures_util::StreamExt;
+    let mut chunks = body.into_data_stream();
+    let mut read = 0u64;
+    while read < max {
+        match chunks.next().await {
+            Some(Ok(chunk)) => read += chunk.len() as u64,
+            _ => break,
+        }
+    }
 }
 
 async fn fallback(req: Request) -> ApiError {
