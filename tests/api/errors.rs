@@ -258,7 +258,7 @@ async fn bad_job_requests_are_refused() {
     // finishes writing and reads the answer (no broken pipe, no reset), every time. The
     // server then closes that connection: use a client of its own so the pooled connection
     // of `s.client` stays healthy.
-    for _ in 0..3 {
+    for _ in 0..4 {
         let r = reqwest::Client::new()
             .post(s.url("/v1/jobs"))
             .header("content-type", "application/json")
@@ -271,19 +271,11 @@ async fn bad_job_requests_are_refused() {
             r.headers().get("connection").map(|v| v.as_bytes()),
             Some(&b"close"[..])
         );
+        assert_eq!(
+            r.json::<Value>().await.unwrap()["code"],
+            "payload_too_large"
+        );
     }
-    let r = reqwest::Client::new()
-        .post(s.url("/v1/jobs"))
-        .header("content-type", "application/json")
-        .body(huge.clone())
-        .send()
-        .await
-        .expect("the 413 is read");
-    assert_eq!(r.status(), 413);
-    assert_eq!(
-        r.json::<Value>().await.unwrap()["code"],
-        "payload_too_large"
-    );
     let r = s
         .client
         .post(s.url("/v1/jobs"))
