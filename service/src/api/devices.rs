@@ -34,13 +34,6 @@ pub struct DeviceListQuery {
     pub q: Option<String>,
 }
 
-/// Whether `c` matches the cursor's declared pattern `^[A-Za-z0-9._-]{1,128}$`.
-fn valid_cursor(c: &str) -> bool {
-    (1..=128).contains(&c.len())
-        && c.chars()
-            .all(|ch| ch.is_ascii_alphanumeric() || matches!(ch, '.' | '_' | '-'))
-}
-
 /// A page of devices in serial order.
 #[derive(Debug, Serialize, Deserialize, ToSchema)]
 #[schema(example = json!({
@@ -77,7 +70,7 @@ pub async fn list_devices(
     // The cursor is only a key to list after (serials sort as strings), so any string the
     // spec's pattern admits is a valid cursor, even "." or ".." which are never serials.
     if let Some(c) = &cursor
-        && !valid_cursor(c)
+        && !super::jobs::name_pattern(c)
     {
         return Err(ApiError::new(
             "invalid_query",

@@ -68,13 +68,18 @@ fn empty_object() -> Value {
     Value::Object(Default::default())
 }
 
+/// Whether `s` is a device or sensor name: [`name_pattern`], but never `.` or `..` (names
+/// become path segments).
 pub(crate) fn valid_name(s: &str) -> bool {
-    !s.is_empty()
-        && s.len() <= 128
+    name_pattern(s) && s != "." && s != ".."
+}
+
+/// Whether `s` matches `^[A-Za-z0-9._-]{1,128}$`, the alphabet of names and of the device
+/// list's cursor.
+pub(crate) fn name_pattern(s: &str) -> bool {
+    (1..=128).contains(&s.len())
         && s.chars()
             .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'))
-        && s != "."
-        && s != ".."
 }
 
 /// Queue a job.
