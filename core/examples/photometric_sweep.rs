@@ -44,7 +44,10 @@
 //!   four targets (medians 0.0012 / 0.0018 / 0.54 %, time median 4.1 s, worst 5.5 s); misses
 //!   `eval4#1` (EMoR, f(0.5) = 0.86, steps, cos⁴ vignette, 35 % clipped: gauge 0.864, vignette
 //!   0.0201 with the polynomial kept by `auto`) and `eval4#3` (EMoR, f(0.5) = 0.73, sweep
-//!   program: exposure error 2.33 %). Not yet used for any choice.
+//!   program: exposure error 2.33 %). Not yet used for any choice. Looked at after (settings
+//!   by `SWEEP_PARAMS`, diagnosis only): `eval4#1`'s vignette stays off with the spline
+//!   (0.0155), at the true gauge (0.0152), with Huber 6 levels (0.0211) or the centre fitted
+//!   (0.0201), so neither the model, the gauge nor the centre is what misses there.
 //!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \
