@@ -35,8 +35,9 @@
 //!   the cos⁴ law) the refinement ends at cost 1.198840 with 0.0023 / 0.0160 / 1.41 %, where
 //!   the default fit moved to the true gauge also ends (1.198840, the same numbers); the
 //!   default fit's own gauge, 0.864, costs 1.198424 (0.0039 / 0.0202 / 1.39 %). So the
-//!   samples favour a vignette 0.016 off, on a smooth scene with few sharp edges: the same
-//!   kind of miss as `eval#6`, not a wrong basin.
+//!   samples favour a vignette 0.016 off: not a wrong basin. The scene is a smooth sum of
+//!   sinusoids, so unlike `eval#6` edge samples are an unlikely cause; what biases it is
+//!   still open (the response is strongly concave and a third of the pixels clip).
 //!
 //! Tried before finding that, not kept (tuning splits of `examples/photometric_sweep.rs`):
 //! * polishing the chosen gauge on all samples (fits at ±0.02 warm-started from the full fit,
