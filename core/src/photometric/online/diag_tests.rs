@@ -1,3 +1,6 @@
+//! Why over 600 lines: the diagnostics share one ground-truth observer and scorer, and about
+//! half the file is the measured record of what each of them showed, kept beside the code.
+//!
 //! Diagnostics (ignored by default): the online fit fed with ground-truth observations, to tell
 //! errors of the observations (tracks, sampling, noise) from errors of the fit.
 //! `cargo test -p caliper-core --release --lib online::diag_tests -- --ignored --nocapture`
@@ -61,6 +64,20 @@
 //! gauge, 0.0002 / 0.0013 / 0.42 %; over the sweep it was not kept (see
 //! `examples/photometric_sweep.rs`).
 //!
+//! The held-out sweep misses of `eval4` (`diag_eval4_1`, `diag_eval4_3`, run 2026-12-05 after
+//! the split's one sweep run; gauge at the truth; response / vignetting / exposure error with
+//! the common scale): the tracks give `eval4#1` 0.0022 / **0.0158** / 1.42 % and `eval4#3`
+//! 0.0018 / 0.0043 / **2.24 %**; the same samples re-read at the true positions give 0.0005 /
+//! 0.0052 / 0.54 % and 0.0004 / 0.0020 / 0.27 %, both within every target. Ground-truth
+//! samples with the true noise and clipping (`eval4#3`, `DIAG_GT=1 DIAG_CENSOR=1`, `Exact`):
+//! 0.0003 / 0.0003 / 0.13 %. So the fit is sound and so is the choice of samples; what
+//! misses is where the tracker puts them: on `eval4#1` (±1-stop steps) the position error is
+//! already 0.18 px median, 0.60 px p90 at ages 0–9 and does not grow with age (0.21 / 0.52 at
+//! 30–39), a per-frame error of the gain-robust match under exposure changes rather than
+//! drift. The lead: re-align the tracks once the response is known, in the linearised domain
+//! where an exposure change is a pure gain (the joint tracking and calibration of Kim &
+//! Pollefeys, PAMI 2008), then refit.
+//!
 //! A false or imprecise re-association ties two radiances; the tuning split says the accepted
 //! ones still include such cases. Untried: checking a re-found ghost forward-backward or over
 //! a few frames before merging, or merging only the centre sample.
@@ -72,7 +89,8 @@ use crate::photometric::metrics::{
 };
 use crate::photometric::response::interp_table;
 use crate::photometric::synth::{
-    AeVideo, ExposureProgram, Rng, SynthCamera, Texture, clipped_fraction, render_ae_video,
+    AeVideo, ExposureProgram, Rng, SynthCamera, Texture, VignetteForm, clipped_fraction,
+    render_ae_video,
 };
 use crate::photometric::{ResponseModel, VignetteModel};
 
@@ -290,6 +308,11 @@ fn gt_obs(
 }
 
 fn run(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3]) {
+    run_seeded(label, response, video, vig, 3);
+}
+
+/// [`run`] with the camera's seed (scene texture and noise), to replay a sweep case.
+fn run_seeded(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3], seed: u64) {
     let (w, h, nf) = (320, 240, 200);
     let cam = SynthCamera {
         width: w,
@@ -299,11 +322,12 @@ fn run(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3]) {
         shot: 2e-4,
         read: 1.5e-3,
         sixteen_bit: false,
-        seed: 3,
+        seed,
     };
     let seq = render_ae_video(&cam, nf, &video);
     let truth_m = cam.response.forward(0.5).clamp(0.06, 0.94);
-    let truth_vig = cam.vignette_model().map();
+    // The rendered law (the camera's polynomial unless the video sets another).
+    let truth_vig = seq.vignette_map.clone();
     let score = |name: &str, seen: Observations, gauge: Option<f64>| {
         let p = OnlineParams {
             gamma_gauge: gauge,
@@ -406,6 +430,81 @@ fn diag_ground_truth_observations() {
         ResponseModel::Gamma { gamma: 2.4 },
         ae,
         [-0.35, 0.05, 0.0],
+    );
+}
+
+/// The sweep's held-out `eval4#3` (f(0.5) = 0.73, a ±1.46-stop sweep, the wave texture, 32 %
+/// clipped; exposure error 2.33 % as shipped, 2.24 % from the truth: `diag_truth_tests.rs`).
+#[test]
+#[ignore]
+fn diag_eval4_3() {
+    let video = AeVideo {
+        program: ExposureProgram::Sweep {
+            stops: 1.4584325198675896,
+            period: 49.79867585111985,
+            flicker: 0.03,
+        },
+        mid: 0.05247241842808399,
+        stops: 7.353382852555681,
+        speed: 1.123039400808102,
+        ..AeVideo::default()
+    };
+    run_seeded(
+        "eval4#3",
+        ResponseModel::Emor {
+            c: [
+                0.6974408076172911,
+                -0.3297953160079472,
+                0.1286668861888899,
+                -0.4822930870419239,
+            ],
+        },
+        video,
+        [
+            -0.5207569093825334,
+            0.08468213145891057,
+            -0.020911017964707235,
+        ],
+        8003,
+    );
+}
+
+/// The sweep's held-out `eval4#1` (f(0.5) = 0.86, ±1-stop steps, the wave texture, a cos⁴
+/// vignette, 35 % clipped; vignette RMSE 0.0201 as shipped). Ground-truth observations
+/// (`DIAG_GT=1`) assume the camera's polynomial, so they do not apply to this law.
+#[test]
+#[ignore]
+fn diag_eval4_1() {
+    let video = AeVideo {
+        program: ExposureProgram::Steps {
+            stops: 0.9888849357338798,
+            hold: 20,
+        },
+        mid: 0.06166095307482866,
+        stops: 5.725613584699218,
+        speed: 0.7185406955183573,
+        vignette: VignetteForm::Cos4 {
+            corner_deg: 40.06674016231496,
+        },
+        ..AeVideo::default()
+    };
+    run_seeded(
+        "eval4#1",
+        ResponseModel::Emor {
+            c: [
+                -2.573118592573565,
+                -0.5609984054341468,
+                -0.7111510032405007,
+                -0.9768107119201427,
+            ],
+        },
+        video,
+        [
+            -0.42368893079879555,
+            -0.07294541605810485,
+            -0.03936006299592929,
+        ],
+        8001,
     );
 }
 
