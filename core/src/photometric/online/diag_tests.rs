@@ -95,8 +95,7 @@ use crate::photometric::metrics::{
 };
 use crate::photometric::response::interp_table;
 use crate::photometric::synth::{
-    AeVideo, ExposureProgram, Rng, SynthCamera, Texture, VignetteForm, clipped_fraction,
-    render_ae_video,
+    AeVideo, ExposureProgram, Rng, SynthCamera, Texture, clipped_fraction, render_ae_video,
 };
 use crate::photometric::{ResponseModel, VignetteModel};
 
@@ -207,12 +206,28 @@ fn drift(
         })
         .collect();
     eprintln!("   drift px: {}", txt.join(" | "));
+    with_obs(seen, obs)
+}
+
+/// `seen` with other samples of the same points.
+fn with_obs(seen: &Observations, obs: Vec<Obs>) -> Observations {
     Observations {
         obs,
         n_points: seen.n_points,
         used_tracks: seen.used_tracks,
         mean_len: seen.mean_len,
         pos: Vec::new(),
+    }
+}
+
+/// A sample value as the fit sees it: clipped values become one-sided bounds at the cut.
+fn censored(val: f64) -> (f64, Censor) {
+    if val <= 3.0 / 255.0 {
+        (3.0 / 255.0, Censor::AtMost)
+    } else if val >= 250.0 / 255.0 {
+        (250.0 / 255.0, Censor::AtLeast)
+    } else {
+        (val, Censor::Exact)
     }
 }
 
@@ -278,13 +293,7 @@ fn gt_obs(
                 }
             };
             // `DIAG_CENSOR=1`: clipped values stay as one-sided bounds at the cut.
-            let (value, censor) = if val <= 3.0 / 255.0 {
-                (3.0 / 255.0, Censor::AtMost)
-            } else if val >= 250.0 / 255.0 {
-                (250.0 / 255.0, Censor::AtLeast)
-            } else {
-                (val, Censor::Exact)
-            };
+            let (value, censor) = censored(val);
             if censor != Censor::Exact && std::env::var_os("DIAG_CENSOR").is_none() {
                 continue;
             }
@@ -441,26 +450,14 @@ fn reread(frames: &[crate::photometric::PhotoImage], seen: &Observations) -> Obs
         else {
             continue;
         };
-        let (value, censor) = if val <= 3.0 / 255.0 {
-            (3.0 / 255.0, Censor::AtMost)
-        } else if val >= 250.0 / 255.0 {
-            (250.0 / 255.0, Censor::AtLeast)
-        } else {
-            (val, Censor::Exact)
-        };
+        let (value, censor) = censored(val);
         obs.push(Obs {
             value: value as f32,
             censor,
             ..*o
         });
     }
-    Observations {
-        obs,
-        n_points: seen.n_points,
-        used_tracks: seen.used_tracks,
-        mean_len: seen.mean_len,
-        pos: Vec::new(),
-    }
+    with_obs(seen, obs)
 }
 
 #[test]
@@ -503,35 +500,8 @@ fn diag_ground_truth_observations() {
 #[test]
 #[ignore]
 fn diag_eval4_3() {
-    let video = AeVideo {
-        program: ExposureProgram::Sweep {
-            stops: 1.4584325198675896,
-            period: 49.79867585111985,
-            flicker: 0.03,
-        },
-        mid: 0.05247241842808399,
-        stops: 7.353382852555681,
-        speed: 1.123039400808102,
-        ..AeVideo::default()
-    };
-    run_seeded(
-        "eval4#3",
-        ResponseModel::Emor {
-            c: [
-                0.6974408076172911,
-                -0.3297953160079472,
-                0.1286668861888899,
-                -0.4822930870419239,
-            ],
-        },
-        video,
-        [
-            -0.5207569093825334,
-            0.08468213145891057,
-            -0.020911017964707235,
-        ],
-        8003,
-    );
+    let (cam, video) = super::diag_truth_tests::eval4_3();
+    run_seeded("eval4#3", cam.response, video, cam.vignette, cam.seed);
 }
 
 /// The sweep's held-out `eval4#1` (f(0.5) = 0.86, ±1-stop steps, the wave texture, a cos⁴
@@ -540,37 +510,8 @@ fn diag_eval4_3() {
 #[test]
 #[ignore]
 fn diag_eval4_1() {
-    let video = AeVideo {
-        program: ExposureProgram::Steps {
-            stops: 0.9888849357338798,
-            hold: 20,
-        },
-        mid: 0.06166095307482866,
-        stops: 5.725613584699218,
-        speed: 0.7185406955183573,
-        vignette: VignetteForm::Cos4 {
-            corner_deg: 40.06674016231496,
-        },
-        ..AeVideo::default()
-    };
-    run_seeded(
-        "eval4#1",
-        ResponseModel::Emor {
-            c: [
-                -2.573118592573565,
-                -0.5609984054341468,
-                -0.7111510032405007,
-                -0.9768107119201427,
-            ],
-        },
-        video,
-        [
-            -0.42368893079879555,
-            -0.07294541605810485,
-            -0.03936006299592929,
-        ],
-        8001,
-    );
+    let (cam, video) = super::diag_truth_tests::eval4_1();
+    run_seeded("eval4#1", cam.response, video, cam.vignette, cam.seed);
 }
 
 /// A heavily saturated auto-exposure video (about half the pixels clipped), to tell the

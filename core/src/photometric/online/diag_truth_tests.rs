@@ -282,7 +282,7 @@ fn eval6() -> (SynthCamera, AeVideo) {
 
 /// The sweep's held-out eval4#1 (f(0.5) = 0.86, ±1-stop steps held 20 frames, the wave
 /// texture, a cos⁴ vignette with a 40° corner; printed by the sweep with `SWEEP_DEBUG=1`).
-fn eval4_1() -> (SynthCamera, AeVideo) {
+pub(super) fn eval4_1() -> (SynthCamera, AeVideo) {
     let cam = sweep_camera(
         [
             -2.573118592573565,
@@ -316,7 +316,7 @@ fn eval4_1() -> (SynthCamera, AeVideo) {
 
 /// The sweep's held-out eval4#3 (f(0.5) = 0.73, a ±1.46-stop sweep, the wave texture, a
 /// polynomial vignette; printed by the sweep with `SWEEP_DEBUG=1`).
-fn eval4_3() -> (SynthCamera, AeVideo) {
+pub(super) fn eval4_3() -> (SynthCamera, AeVideo) {
     let cam = sweep_camera(
         [
             0.6974408076172911,
