@@ -32,18 +32,20 @@
 //! * the held-out `eval4#1` (`DIAG_E41=1`; f(0.5) = 0.86, ±1-stop steps, the wave texture, a
 //!   cos⁴ vignette with a 40° corner, 35 % clipped; vignette RMSE 0.0201 as shipped), run
 //!   2026-12-05 after its one sweep run: started from the truth (the polynomial closest to
-//!   the cos⁴ law, within 0.0012 RMS of it) the refinement ends at cost 1.198840 with 0.0023 / 0.0160 / 1.41 %, where
-//!   the default fit moved to the true gauge also ends (1.198840, the same numbers); the
-//!   default fit's own gauge, 0.864, costs 1.198424 (0.0039 / 0.0202 / 1.39 %). So the
-//!   samples favour a vignette 0.016 off: not a wrong basin. The scene is a smooth sum of
-//!   sinusoids, so unlike `eval#6` edge samples are an unlikely cause; what biases it is
-//!   still open (the response is strongly concave and a third of the pixels clip).
+//!   the cos⁴ law, within 0.0012 RMS of it) the refinement ends at cost 1.198840 with
+//!   0.0023 / 0.0160 / 1.41 %, where the default fit moved to the true gauge also ends
+//!   (1.198840, the same numbers); the default fit's own gauge, 0.864, costs 1.198424
+//!   (0.0039 / 0.0202 / 1.39 %). So the samples favour a vignette 0.016 off: not a wrong
+//!   basin. The scene is a smooth sum of sinusoids, so unlike `eval#6` edge samples are an
+//!   unlikely cause; `diag_tests.rs` (`diag_eval4_1`) finds it: the tracker's sample
+//!   positions.
 //! * the held-out `eval4#3` (`DIAG_E43=1`; f(0.5) = 0.73, a ±1.46-stop sweep, the wave
 //!   texture, a polynomial vignette, 32 % clipped; exposure error 2.33 % as shipped): from
 //!   the truth 1.858578 with 0.0018 / 0.0043 / 2.24 %, the default fit at the true gauge the
 //!   same, at its own 0.734 1.858832 (0.0022 / 0.0046 / 2.33 %), and ±0.02 around it cost
 //!   2–4 % more. Gauge and basin are right; the samples themselves put the exposures 2.2 %
-//!   off (RMS over the frames after the best common scale).
+//!   off (RMS over the frames after the best common scale), again from the tracker's sample
+//!   positions (`diag_tests.rs`, `diag_eval4_3`).
 //!
 //! Tried before finding that, not kept (tuning splits of `examples/photometric_sweep.rs`):
 //! * polishing the chosen gauge on all samples (fits at ±0.02 warm-started from the full fit,
