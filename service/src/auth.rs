@@ -61,7 +61,7 @@ pub fn generate(
         return Err(TokenError::Name);
     }
     if let Some(d) = &devices {
-        if d.is_empty() || d.len() > 1000 || !d.iter().all(|s| crate::api::jobs::valid_name(s)) {
+        if d.is_empty() || d.len() > 1000 || !d.iter().all(|s| crate::api::names::valid_name(s)) {
             return Err(TokenError::Devices);
         }
         if scope == Scope::Admin {

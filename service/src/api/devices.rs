@@ -70,7 +70,7 @@ pub async fn list_devices(
     // The cursor is only a key to list after (serials sort as strings), so any string the
     // spec's pattern admits is a valid cursor, even "." or ".." which are never serials.
     if let Some(c) = &cursor
-        && !super::jobs::name_pattern(c)
+        && !super::names::name_pattern(c)
     {
         return Err(ApiError::new(
             "invalid_query",

@@ -19,6 +19,7 @@ use utoipa_axum::routes;
 use uuid::Uuid;
 
 use super::extract::{ApiJson, ApiPath, ApiQuery};
+use super::names::valid_name;
 use super::views::{ArtifactList, ArtifactView, JobKindView, JobPage, JobView};
 use crate::auth::Principal;
 use crate::error::{ApiError, ApiResult, Problem};
@@ -66,20 +67,6 @@ pub struct CreateJobRequest {
 
 fn empty_object() -> Value {
     Value::Object(Default::default())
-}
-
-/// Whether `s` is a device or sensor name: [`name_pattern`], but never `.` or `..` (names
-/// become path segments).
-pub(crate) fn valid_name(s: &str) -> bool {
-    name_pattern(s) && s != "." && s != ".."
-}
-
-/// Whether `s` matches `^[A-Za-z0-9._-]{1,128}$`, the alphabet of names and of the device
-/// list's cursor.
-pub(crate) fn name_pattern(s: &str) -> bool {
-    (1..=128).contains(&s.len())
-        && s.chars()
-            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'))
 }
 
 /// Queue a job.

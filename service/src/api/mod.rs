@@ -8,6 +8,7 @@ pub mod documents;
 pub mod extract;
 pub mod health;
 pub mod jobs;
+pub(crate) mod names;
 pub mod tokens;
 pub mod ui;
 pub mod views;
