@@ -48,10 +48,13 @@
 //!   by `SWEEP_PARAMS`, diagnosis only): `eval4#1`'s vignette stays off with the spline
 //!   (0.0155), at the true gauge (0.0152), with Huber 6 levels (0.0211) or the centre fitted
 //!   (0.0201), so neither the model, the gauge nor the centre is what misses there.
+//! * `eval5`: seeds from 9000, the same generators again: a fifth held-out set, fixed
+//!   2026-12-05 (evening) before the second tracking pass (`online/response_match.rs`) was
+//!   chosen on the tuning splits, to confirm it once.
 //!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \
-//!     [tuning|saturated|scripted|lens|scenes|eval|eval2|eval3|eval4|shared] [cases] [frames] [width] [height]
+//!     [tuning|saturated|scripted|lens|scenes|eval|eval2|eval3|eval4|eval5|shared] [cases] [frames] [width] [height]
 //! ```
 //!
 //! The exposure error is scored like `score_ref.json`'s `ratio_rmse_pct_gauge_aligned`: RMS
@@ -187,8 +190,8 @@ fn eval_program_mix(i: usize, rng: &mut Rng, auto: ExposureProgram) -> ExposureP
 }
 
 fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamera, AeVideo) {
-    // `eval2`, `eval3`, `eval4`: `eval`'s generators with fresh seeds (see the module notes).
-    let eval = matches!(set, "eval" | "eval2" | "eval3" | "eval4");
+    // `eval2` … `eval5`: `eval`'s generators with fresh seeds (see the module notes).
+    let eval = matches!(set, "eval" | "eval2" | "eval3" | "eval4" | "eval5");
     let saturated = set == "saturated";
     let scripted = set == "scripted";
     let lens = set == "lens";
@@ -202,6 +205,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         "eval2" => (6000 + i as u64, 79),
         "eval3" => (7000 + i as u64, 97),
         "eval4" => (8000 + i as u64, 101),
+        "eval5" => (9000 + i as u64, 103),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));

@@ -308,6 +308,28 @@ fn online_calibration_recovers_model() {
     };
     let rf = photometric_online(&seq.frames, &fixed, &NoProgress).unwrap();
     assert!((rf.model.response.forward(0.5) - 0.5).abs() < 2e-3);
+    // One tracking pass by default; a second can be asked for and changes the samples.
+    assert_eq!((r.tracking_passes, rf.tracking_passes), (1, 1));
+    let two = OnlineParams {
+        tracking_passes: 2,
+        ..fixed.clone()
+    };
+    let r2 = photometric_online(&seq.frames, &two, &NoProgress).unwrap();
+    assert_eq!(r2.tracking_passes, 2);
+    assert_ne!(r2.diagnostics.observations, rf.diagnostics.observations);
+    let e2 = exposure_error_pct(&r2.exposure_ratios, &seq.exposures, 1.0);
+    let e1 = exposure_error_pct(&rf.exposure_ratios, &seq.exposures, 1.0);
+    assert!(e2 < 1.5 * e1 + 1.0, "second pass {e2} % against {e1} %");
+    for bad in [0, 3] {
+        let p = OnlineParams {
+            tracking_passes: bad,
+            ..fixed.clone()
+        };
+        assert!(matches!(
+            photometric_online(&seq.frames, &p, &NoProgress),
+            Err(CoreError::InvalidParam { .. })
+        ));
+    }
     let fit = InverseResponse::new(r.model.inverse_256.clone()).unwrap();
     let (alpha, err) = gamma_align(&fit, &cam.response.inverse(256));
     let vig = r.model.vignette.as_ref().unwrap();

@@ -40,6 +40,7 @@ use super::super::{PhotoImage, check_stack};
 use super::center::r2_at;
 use super::gauge::OtherChannel;
 use super::klt::Level;
+use super::response_match::{ResponseMatch, recoverable};
 use super::{GRAD_HALF_WEIGHT, Observations, OnlineParams, OnlineResult, fit, observe};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
@@ -112,12 +113,26 @@ pub fn photometric_online_rgb(
         progress.check()?;
         luma.push(luma_of(f)?);
     }
-    let (w, h) = check_stack(&luma, 3)?;
-    let seen = observe(&luma, params, w, h, progress)?;
-    drop(luma);
     if params.channels == Channels::Luma {
-        return fit(frames.len(), w, h, seen, params, &[], progress);
+        return super::photometric_online(&luma, params, progress);
     }
+    let (w, h) = check_stack(&luma, 3)?;
+    // The tracks of the last pass (`tracking_passes`): a later pass re-aligns the luma matches
+    // through the response of a luma fit of the previous pass.
+    let mut seen = observe(&luma, params, w, h, None, progress)?;
+    let mut passes = 1;
+    for pass in 2..=params.tracking_passes {
+        let again = fit(frames.len(), w, h, seen.clone(), params, &[], progress).and_then(|r| {
+            let rm = ResponseMatch::new(&r.model.response);
+            observe(&luma, params, w, h, Some(&rm), progress)
+        });
+        match again {
+            Ok(next) => (seen, passes) = (next, pass),
+            Err(e) if recoverable(&e) => break,
+            Err(e) => return Err(e),
+        }
+    }
+    drop(luma);
     let r = sample_channel(frames, 0, &seen, params, progress)?;
     let g = sample_channel(frames, 1, &seen, params, progress)?;
     let b = sample_channel(frames, 2, &seen, params, progress)?;
@@ -127,6 +142,7 @@ pub fn photometric_online_rgb(
         n_points: o.n_points as usize,
     });
     let mut result = fit(frames.len(), w, h, g, params, &others, progress)?;
+    result.tracking_passes = passes;
     let log_e: Vec<f64> = result.exposure_ratios.iter().map(|e| e.ln()).collect();
     let v = result.model.vignette.as_ref().map_or([0.0; 3], |m| m.v);
     let spline = result

@@ -413,17 +413,48 @@ fn run_seeded(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3
     }
     score("tracks", seen, Some(truth_m));
     score("truepos", fixed, Some(truth_m));
+    if std::env::var_os("DIAG_RM").is_some() {
+        // The second pass as shipped: matches re-aligned through the first fit's response.
+        let p = OnlineParams::default();
+        let first = observe(&seq.frames, &p, w, h, None, &NoProgress).unwrap();
+        let r = fit(nf, w, h, first, &p, &[], &NoProgress).unwrap();
+        let rm = super::response_match::ResponseMatch::new(&r.model.response);
+        let seen = observe(&seq.frames, &p, w, h, Some(&rm), &NoProgress).unwrap();
+        let _ = drift(&video, &seq.frames, &seen);
+        score("rmatch", seen.clone(), Some(truth_m));
+        score("rmatch", seen, None);
+        let truth = super::response_match::ResponseMatch::new(&cam.response);
+        let seen = observe(&seq.frames, &p, w, h, Some(&truth), &NoProgress).unwrap();
+        let _ = drift(&video, &seq.frames, &seen);
+        score("rm-truth", seen, Some(truth_m));
+    }
     if std::env::var_os("DIAG_LIN").is_some() {
         // Tracked on the frames linearised by the true response (an exposure change is then a
         // pure gain), sampled from the frames as recorded.
         let lin = linearised(&cam.response.inverse(256).values, &seq.frames);
-        let seen = observe(&lin, &OnlineParams::default(), w, h, &NoProgress).unwrap();
+        let seen = observe(&lin, &OnlineParams::default(), w, h, &NoProgress)
+            .unwrap()
+            .0;
         score("lintrack", reread(&seq.frames, &seen), Some(truth_m));
         // The same with the response of a first default fit (what a second pass would have).
-        let first = observe(&seq.frames, &OnlineParams::default(), w, h, &NoProgress).unwrap();
-        let r = fit(nf, w, h, first, &OnlineParams::default(), &[], &NoProgress).unwrap();
+        let first = observe(&seq.frames, &OnlineParams::default(), w, h, &NoProgress)
+            .unwrap()
+            .0;
+        let r = fit(
+            nf,
+            w,
+            h,
+            first,
+            &OnlineParams::default(),
+            &[],
+            None,
+            &NoProgress,
+        )
+        .unwrap();
         let lin = linearised(&r.model.inverse_256, &seq.frames);
-        let seen = observe(&lin, &OnlineParams::default(), w, h, &NoProgress).unwrap();
+        let seen = observe(&lin, &OnlineParams::default(), w, h, &NoProgress)
+            .unwrap()
+            .0;
         let again = reread(&seq.frames, &seen);
         score("linfit", again.clone(), Some(truth_m));
         score("linfit", again, None);
@@ -625,4 +656,36 @@ fn diag_discs() {
         };
         run("waves-steps", response, waves, VIGNETTE);
     }
+}
+
+/// The sweep's tuning#1 (f(0.5) = 0.97, auto exposure, the wave texture; printed by the sweep
+/// with `SWEEP_DEBUG=1`).
+#[test]
+#[ignore]
+fn diag_tuning_1() {
+    let video = AeVideo {
+        program: ExposureProgram::AutoExposure {
+            target: 0.3208212121055762,
+            gain: 0.5651694086635342,
+            flicker: 0.07703433542105612,
+        },
+        scene: crate::photometric::synth::SceneForm::Waves,
+        mid: 0.04176286934303376,
+        stops: 6.139768597110924,
+        speed: 0.9694629647424873,
+        ..AeVideo::default()
+    };
+    run_seeded(
+        "tuning#1",
+        ResponseModel::Emor {
+            c: [-6.0, 0.5, 0.3, 0.0],
+        },
+        video,
+        [
+            -0.2556901693383523,
+            0.04875236045462812,
+            -0.030235086419528226,
+        ],
+        1,
+    );
 }

@@ -8,6 +8,7 @@
 //! a curvature γ by Gauss-Newton, coarse to fine (γ, our addition, follows the camera response
 //! over the patch's range; see [`align_step`]). A forward-backward check rejects drifting tracks.
 
+use super::response_match::{ResponseMatch, refine_with_response};
 use super::similarity::Similarity;
 
 /// One pyramid level: intensity and central-difference gradients.
@@ -54,7 +55,7 @@ impl Level {
 impl Level {
     /// Whether any pixel of the bilinear support of `(x, y)` is [`clipped`] (`(x, y)` inside).
     #[inline]
-    fn support_clipped(&self, x: f32, y: f32) -> bool {
+    pub(crate) fn support_clipped(&self, x: f32, y: f32) -> bool {
         let x0 = (x.floor() as usize).min(self.w.saturating_sub(2));
         let y0 = (y.floor() as usize).min(self.h.saturating_sub(2));
         let i = y0 * self.w + x0;
@@ -135,7 +136,7 @@ pub(crate) struct KltConfig {
 /// Values this close to black or full scale are (or mix with) clipped pixels, which do not
 /// follow the gain-and-bias brightness model and would pull the match: they are left out.
 #[inline]
-fn clipped(v: f32) -> bool {
+pub(crate) fn clipped(v: f32) -> bool {
     !(0.01..=0.985).contains(&v)
 }
 
@@ -413,12 +414,16 @@ pub(crate) struct Track {
 /// Tracks every track from `pp` into `pyr` (frame to frame, translation only), updates the
 /// roll-and-zoom `chain` from the matches, and re-aligns each match to its birth template laid
 /// out with the roll and zoom since its birth. `None` for lost tracks.
+///
+/// With `rm` (a later pass) the re-alignment maps the template through the fitted response
+/// ([`refine_with_response`]).
 pub(crate) fn track_and_refine(
     pp: &Pyramid,
     pyr: &Pyramid,
     tracks: &[Track],
     cfg: &KltConfig,
     chain: &mut Similarity,
+    rm: Option<&ResponseMatch>,
 ) -> Vec<Option<[f32; 2]>> {
     use rayon::prelude::*;
     let moved: Vec<Option<[f32; 2]>> = tracks
@@ -441,8 +446,11 @@ pub(crate) fn track_and_refine(
         .par_iter()
         .zip(moved.par_iter())
         .map(|(t, q)| {
-            let (q2, rms) =
-                refine_to_template(&t.tmpl, pyr, (*q)?, cfg.half_window, 10, now.since(t.birth))?;
+            let (hw, warp) = (cfg.half_window, now.since(t.birth));
+            let (q2, rms) = match rm {
+                Some(rm) => refine_with_response(&t.tmpl, &pyr.levels[0], (*q)?, hw, 10, warp, rm),
+                None => refine_to_template(&t.tmpl, pyr, (*q)?, hw, 10, warp),
+            }?;
             (rms <= cfg.max_residual).then_some(q2)
         })
         .collect()

@@ -38,6 +38,8 @@ mod feature_tests;
 mod gauge;
 pub(crate) mod klt;
 mod linked;
+mod observe;
+mod response_match;
 mod similarity;
 mod vig_model;
 
@@ -48,15 +50,15 @@ use serde::{Deserialize, Serialize};
 
 use super::emor::EMOR_DIM;
 use super::flat::VignetteKind;
-use super::joint::{Censor, JointConfig, JointState, Obs, gauge_start, refine};
+use super::joint::{JointConfig, JointState, Obs, gauge_start, refine};
 use super::response::ResponseModel;
 use super::vignette::VignetteModel;
 use super::{FitDiagnostics, PHOTOMETRIC_SCHEMA, PhotoImage, PhotometricModel, check_stack};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
 use gauge::OtherChannel;
-use klt::{KltConfig, Pyramid, Track, min_eigen, patch, track_and_refine};
-use similarity::Similarity;
+pub(crate) use observe::{GRAD_HALF_WEIGHT, Observations, observe};
+use response_match::ResponseMatch;
 pub use vig_model::VignetteChoice;
 
 /// Parameters of [`photometric_online`].
@@ -105,6 +107,12 @@ pub struct OnlineParams {
     /// wide-angle and mechanically vignetted lenses) or `auto` (both; the spline when it fits
     /// clearly better, see `vignette_choice` in the result).
     pub vignette_model: VignetteKind,
+    /// Tracking passes: 1 (default); 2 tracks the video again with every match re-aligned to
+    /// its birth patch through the first fit's response (`J = f(k·f⁻¹(T))`, Kim & Pollefeys
+    /// 2008) and fits again, for about twice the time. Opt-in: on the sweep's tuning sets it
+    /// helps scenes of occluding objects (8 → 11 of 12 within the targets) and costs elsewhere
+    /// (55 against 54 of 60 in all; `response_match`).
+    pub tracking_passes: usize,
 }
 
 impl Default for OnlineParams {
@@ -125,6 +133,7 @@ impl Default for OnlineParams {
             channels: Channels::Luma,
             vignette_center: CenterMode::Fixed,
             vignette_model: VignetteKind::Auto,
+            tracking_passes: 1,
         }
     }
 }
@@ -162,6 +171,9 @@ impl OnlineParams {
         if !(1..=1000).contains(&self.max_iterations) {
             return Err(CoreError::param("max_iterations", "must be in 1..=1000"));
         }
+        if !(1..=2).contains(&self.tracking_passes) {
+            return Err(CoreError::param("tracking_passes", "must be 1 or 2"));
+        }
         if self.max_points < 100 {
             return Err(CoreError::param("max_points", "must be ≥ 100"));
         }
@@ -197,31 +209,11 @@ pub struct OnlineResult {
     /// exposures and vignetting; `model.response` is then the green one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub channel_responses: Option<Vec<ChannelResponse>>,
+    /// Tracking passes run (`tracking_passes`, fewer when a later pass found too few tracks on
+    /// the linearised frames and the previous fit was kept).
+    #[serde(default)]
+    pub tracking_passes: usize,
 }
-
-const OFFSETS: [[f32; 2]; 9] = [
-    [0.0, 0.0],
-    [2.0, 0.0],
-    [-2.0, 0.0],
-    [0.0, 2.0],
-    [0.0, -2.0],
-    [2.0, 2.0],
-    [-2.0, -2.0],
-    [2.0, -2.0],
-    [-2.0, 2.0],
-];
-
-/// Frames after which a track ends (its cell is re-detected). Chosen on the sweep's tuning
-/// split when the birth patch was matched by translation only and drifted as the patch turned
-/// and scaled (0.5 px after 70 frames, `diag_tests.rs`): targets met on 7 of 12 cases with 40,
-/// 5 with 80, 4 without. With the roll-and-zoom chain the drift no longer grows with age
-/// (~0.07 px median at every age); 80 frames then gave the same 8 of 12 tuning cases within the
-/// accuracy targets (medians 0.0022 / 0.0018 / 0.51 % against 0.0019 / 0.0019 / 0.61 %) for
-/// more time, so the cap stays, also for perspective changes that a similarity does not follow.
-const MAX_TRACK_AGE: u32 = 40;
-
-/// Gradient (normalised intensity per pixel) at which a sample's weight halves.
-const GRAD_HALF_WEIGHT: f32 = 0.03;
 
 /// Calibrate response, vignetting and exposures from an auto-exposure video.
 pub fn photometric_online(
@@ -237,224 +229,26 @@ pub fn photometric_online(
         ));
     }
     let (w, h) = check_stack(frames, 3)?;
-    let seen = observe(frames, params, w, h, progress)?;
-    fit(frames.len(), w, h, seen, params, &[], progress)
-}
-
-/// Samples of tracked scene points, sorted by point (renumbered densely) then frame.
-#[derive(Clone)]
-pub(crate) struct Observations {
-    pub obs: Vec<Obs>,
-    pub n_points: u32,
-    pub used_tracks: usize,
-    pub mean_len: f64,
-    /// Image position of each observation (same order as `obs`): the vignetting centre fit
-    /// and the colour channels' samples read it.
-    pub pos: Vec<[f32; 2]>,
-}
-
-/// Track features through the video and sample them.
-pub(crate) fn observe(
-    frames: &[PhotoImage],
-    params: &OnlineParams,
-    w: usize,
-    h: usize,
-    progress: &dyn Progress,
-) -> CoreResult<Observations> {
-    let vig0 = VignetteModel::centered(w, h, [0.0; 3]);
-    let cfg = KltConfig {
-        half_window: params.half_window as i32,
-        iterations: 8,
-        max_residual: params.max_track_residual as f32,
-        max_fb: 0.3,
-    };
-    let to_pyr = |im: &PhotoImage| {
-        let s = 1.0 / f32::from(im.max_level);
-        Pyramid::new(
-            w,
-            h,
-            im.data.iter().map(|&v| f32::from(v) * s).collect(),
-            params.pyramid_levels,
-        )
-    };
-    let border = (params.half_window + 3) as f32;
-    let cell = (((w * h) as f64 / params.max_features as f64)
-        .sqrt()
-        .max(4.0)) as usize;
-    let n_off = params.samples_per_track;
-    let mut obs: Vec<Obs> = Vec::new();
-    let mut pos: Vec<[f32; 2]> = Vec::new();
-    let mut tracks: Vec<Track> = Vec::new();
-    let mut track_len: Vec<u32> = Vec::new();
-    let mut prev: Option<Pyramid> = None;
-    let mut chain = Similarity::IDENTITY;
-    for (k, im) in frames.iter().enumerate() {
-        progress.check()?;
-        progress.report("track", k as u64, frames.len() as u64);
-        let pyr = to_pyr(im);
-        if let Some(pp) = &prev {
-            // Tracks at the age limit end here, before they cost a match.
-            tracks.retain(|t| track_len[t.id] < MAX_TRACK_AGE);
-            let tracked = track_and_refine(pp, &pyr, &tracks, &cfg, &mut chain);
-            let mut kept = Vec::with_capacity(tracks.len());
-            for (t, q) in tracks.drain(..).zip(tracked) {
-                if let Some(q) = q.filter(|q| {
-                    q[0] >= border
-                        && q[1] >= border
-                        && q[0] < w as f32 - border
-                        && q[1] < h as f32 - border
-                }) {
-                    kept.push(Track {
-                        vel: [q[0] - t.pos[0], q[1] - t.pos[1]],
-                        pos: q,
-                        ..t
-                    });
-                }
-            }
-            tracks = kept;
-        }
-        // Re-detect in empty grid cells.
-        if tracks.len() < params.max_features * 9 / 10 {
-            let l0 = &pyr.levels[0];
-            let score = min_eigen(l0, 2);
-            let (gw, gh) = (w.div_ceil(cell), h.div_ceil(cell));
-            let mut occupied = vec![false; gw * gh];
-            for t in &tracks {
-                let (cx, cy) = (t.pos[0] as usize / cell, t.pos[1] as usize / cell);
-                occupied[cy.min(gh - 1) * gw + cx.min(gw - 1)] = true;
-            }
-            let b = border as usize + 2;
-            for gy in 0..gh {
-                for gx in 0..gw {
-                    if occupied[gy * gw + gx] {
-                        continue;
-                    }
-                    let mut best = (1e-4f32, None);
-                    for y in (gy * cell).max(b)..((gy + 1) * cell).min(h.saturating_sub(b)) {
-                        for x in (gx * cell).max(b)..((gx + 1) * cell).min(w.saturating_sub(b)) {
-                            if score[y * w + x] > best.0 {
-                                best = (score[y * w + x], Some([x as f32, y as f32]));
-                            }
-                        }
-                    }
-                    if let (_, Some(p)) = best
-                        && let Some(tmpl) = patch(&pyr, p, cfg.half_window)
-                    {
-                        tracks.push(Track {
-                            id: track_len.len(),
-                            pos: p,
-                            vel: [0.0; 2],
-                            birth: chain,
-                            tmpl,
-                        });
-                        track_len.push(0);
-                    }
-                }
-            }
-        }
-        // Samples.
-        let l0 = &pyr.levels[0];
-        for t in &tracks {
-            track_len[t.id] += 1;
-            let warp = chain.since(t.birth);
-            for (o, off) in OFFSETS[..n_off].iter().enumerate() {
-                let [ox, oy] = warp.apply(*off);
-                let (x, y) = (t.pos[0] + ox, t.pos[1] + oy);
-                let (Some(v), Some(gx), Some(gy)) = (
-                    l0.sample(&l0.data, x, y),
-                    l0.sample(&l0.gx, x, y),
-                    l0.sample(&l0.gy, x, y),
-                ) else {
-                    continue;
+    let seen = observe(frames, params, w, h, None, progress)?;
+    let mut result = fit(frames.len(), w, h, seen, params, &[], progress)?;
+    result.tracking_passes = 1;
+    for pass in 2..=params.tracking_passes {
+        let rm = ResponseMatch::new(&result.model.response);
+        let again = observe(frames, params, w, h, Some(&rm), progress)
+            .and_then(|seen| fit(frames.len(), w, h, seen, params, &[], progress));
+        match again {
+            Ok(next) => {
+                result = OnlineResult {
+                    tracking_passes: pass,
+                    ..next
                 };
-                // A sample at or beyond a cut with its whole bilinear support on that side is a
-                // bound (censored, see `Censor`); one that blends clipped and unclipped pixels
-                // is biased and left out.
-                let (x0, y0) = (x.floor() as usize, y.floor() as usize);
-                let i0 = y0 * w + x0;
-                let [Some(a), Some(b), Some(c), Some(d)] =
-                    [i0, i0 + 1, i0 + w, i0 + w + 1].map(|i| l0.data.get(i).copied())
-                else {
-                    continue;
-                };
-                let px = [v, a, b, c, d];
-                let low = px.iter().any(|&p| f64::from(p) <= params.low_cut);
-                let high = px.iter().any(|&p| f64::from(p) >= params.high_cut);
-                let (value, censor) = match (low, high) {
-                    (false, false) => (v, Censor::Exact),
-                    (false, true) if f64::from(v) >= params.high_cut => {
-                        (params.high_cut as f32, Censor::AtLeast)
-                    }
-                    (true, false) if f64::from(v) <= params.low_cut => {
-                        (params.low_cut as f32, Censor::AtMost)
-                    }
-                    _ => continue,
-                };
-                let g2 = (gx * gx + gy * gy) / (GRAD_HALF_WEIGHT * GRAD_HALF_WEIGHT);
-                pos.push([x, y]);
-                obs.push(Obs {
-                    point: (t.id * n_off + o) as u32,
-                    frame: k as u32,
-                    r2: vig0.r2(f64::from(x), f64::from(y)) as f32,
-                    value,
-                    weight: 1.0 / (1.0 + g2),
-                    censor,
-                });
             }
+            // Too few tracks in this pass: keep the last fit (said in `tracking_passes`).
+            Err(e) if response_match::recoverable(&e) => break,
+            Err(e) => return Err(e),
         }
-        prev = Some(pyr);
     }
-    let used_tracks = track_len.iter().filter(|&&n| n >= 2).count();
-    let mean_len = if used_tracks > 0 {
-        track_len
-            .iter()
-            .filter(|&&n| n >= 2)
-            .map(|&n| f64::from(n))
-            .sum::<f64>()
-            / used_tracks as f64
-    } else {
-        0.0
-    };
-    // Points with ≥ 2 observations, evenly subsampled, renumbered densely.
-    let mut order: Vec<u32> = (0..obs.len() as u32).collect();
-    order.sort_by_key(|&i| (obs[i as usize].point, obs[i as usize].frame));
-    let mut obs: Vec<Obs> = order.iter().map(|&i| obs[i as usize]).collect();
-    let mut pos: Vec<[f32; 2]> = order.iter().map(|&i| pos[i as usize]).collect();
-    drop(order);
-    let n_raw = (track_len.len() * n_off) as u32;
-    let mut count = vec![0u32; n_raw as usize];
-    for o in obs.iter().filter(|o| o.measured()) {
-        count[o.point as usize] += 1;
-    }
-    let eligible: Vec<u32> = (0..n_raw).filter(|&p| count[p as usize] >= 2).collect();
-    let keep_every = eligible.len().div_ceil(params.max_points).max(1);
-    let mut remap = vec![u32::MAX; n_raw as usize];
-    let mut n_points = 0u32;
-    for &p in eligible.iter().step_by(keep_every) {
-        remap[p as usize] = n_points;
-        n_points += 1;
-    }
-    let mut keep = obs.iter().map(|o| remap[o.point as usize] != u32::MAX);
-    pos.retain(|_| keep.next().unwrap_or(false));
-    obs.retain_mut(|o| {
-        let m = remap[o.point as usize];
-        o.point = m;
-        m != u32::MAX
-    });
-    if n_points < 20 || obs.len() < 200 {
-        return Err(CoreError::input(format!(
-            "only {n_points} trackable scene points ({} samples): the video needs texture and \
-             overlap between frames",
-            obs.len()
-        )));
-    }
-    Ok(Observations {
-        obs,
-        n_points,
-        used_tracks,
-        mean_len,
-        pos,
-    })
+    Ok(result)
 }
 
 /// Exposures, then the joint refinement, from the observations. `others`: further colour
@@ -624,5 +418,6 @@ pub(crate) fn fit(
         vignette_center: center,
         vignette_choice,
         channel_responses: None,
+        tracking_passes: 1,
     })
 }
