@@ -104,7 +104,15 @@ fn truth_start(label: &str, cam: &SynthCamera, video: &AeVideo, nf: usize) {
         eprintln!("{label}: truth start needs an EMoR response");
         return;
     };
-    let seen = observe(&seq.frames, &OnlineParams::default(), w, h, &NoProgress).unwrap();
+    let seen = observe(
+        &seq.frames,
+        &OnlineParams::default(),
+        w,
+        h,
+        None,
+        &NoProgress,
+    )
+    .unwrap();
     let r = fit(
         nf,
         w,

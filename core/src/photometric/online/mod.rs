@@ -23,6 +23,9 @@
 //!    `gamma_gauge` (then results of one camera share the gauge).
 //! 4. Optionally (`vignette_center: auto | estimated`; the default keeps DSO's image centre)
 //!    the vignetting centre ([`center`]), followed by a final joint refinement around it.
+//! 5. Optionally (`tracking_passes: 2`) the video is tracked again with every match re-aligned
+//!    through the fitted response ([`response_match`]) and the fit runs again on the new
+//!    samples (the module `observe` tracks and samples).
 //!
 //! Colour input with `channels: rgb` tracks on luma and fits one response per channel with
 //! exposures and vignetting shared ([`channels`]).

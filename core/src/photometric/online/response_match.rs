@@ -12,6 +12,12 @@
 //! recorded intensities, where the sensor noise is even (tracking on frames linearised by `f`
 //! instead amplifies the noise of the steep end of `f⁻¹`; that variant lost 2 of 12 cases on
 //! the sweep's tuning split and was dropped).
+//!
+//! Measured (`examples/photometric_sweep.rs` notes): on the five tuning splits 55 of 60
+//! sequences within the accuracy targets against 54 with one pass, on the fresh held-out
+//! `eval5` 10 of 12 within every target against 9, for 1.9× the time. Where the gauge profile
+//! is flat the new samples can tip the gauge the other way, so the pass is opt-in
+//! (`tracking_passes: 2`).
 
 use super::klt::{Level, clipped};
 use super::similarity::Similarity;
