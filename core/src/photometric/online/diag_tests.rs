@@ -213,6 +213,15 @@ fn drift(
     with_obs(seen, obs)
 }
 
+/// The default first pass's observations.
+pub(super) fn tracked(
+    frames: &[crate::photometric::PhotoImage],
+    w: usize,
+    h: usize,
+) -> Observations {
+    observe(frames, &OnlineParams::default(), w, h, None, &NoProgress).unwrap()
+}
+
 /// `seen` with other samples of the same points.
 fn with_obs(seen: &Observations, obs: Vec<Obs>) -> Observations {
     Observations {
@@ -407,15 +416,7 @@ fn run_seeded(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3
             }
         }
     }
-    let seen = observe(
-        &seq.frames,
-        &OnlineParams::default(),
-        w,
-        h,
-        None,
-        &NoProgress,
-    )
-    .unwrap();
+    let seen = tracked(&seq.frames, w, h);
     let fixed = drift(&video, &seq.frames, &seen);
     if std::env::var_os("DIAG_FREE").is_some() {
         // The default: the gauge chosen from the data (`gauge.rs`).
@@ -426,7 +427,7 @@ fn run_seeded(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3
     if std::env::var_os("DIAG_RM").is_some() {
         // The second pass as shipped: matches re-aligned through the first fit's response.
         let p = OnlineParams::default();
-        let first = observe(&seq.frames, &p, w, h, None, &NoProgress).unwrap();
+        let first = tracked(&seq.frames, w, h);
         let r = fit(nf, w, h, first, &p, &[], &NoProgress).unwrap();
         let rm = super::response_match::ResponseMatch::new(&r.model.response);
         let seen = observe(&seq.frames, &p, w, h, Some(&rm), &NoProgress).unwrap();
@@ -442,21 +443,13 @@ fn run_seeded(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3
         // Tracked on the frames linearised by the true response (an exposure change is then a
         // pure gain), sampled from the frames as recorded.
         let lin = linearised(&cam.response.inverse(256).values, &seq.frames);
-        let seen = observe(&lin, &OnlineParams::default(), w, h, None, &NoProgress).unwrap();
+        let seen = tracked(&lin, w, h);
         score("lintrack", reread(&seq.frames, &seen), Some(truth_m));
         // The same with the response of a first default fit (what a second pass would have).
-        let first = observe(
-            &seq.frames,
-            &OnlineParams::default(),
-            w,
-            h,
-            None,
-            &NoProgress,
-        )
-        .unwrap();
+        let first = tracked(&seq.frames, w, h);
         let r = fit(nf, w, h, first, &OnlineParams::default(), &[], &NoProgress).unwrap();
         let lin = linearised(&r.model.inverse_256, &seq.frames);
-        let seen = observe(&lin, &OnlineParams::default(), w, h, None, &NoProgress).unwrap();
+        let seen = tracked(&lin, w, h);
         let again = reread(&seq.frames, &seen);
         score("linfit", again.clone(), Some(truth_m));
         score("linfit", again, None);

@@ -63,7 +63,7 @@
 //!   but the splits are unchanged (tuning 11/12, medians 0.0009 / 0.0018 / 0.42 %; saturated
 //!   12/12, 0.0008 / 0.0010 / 0.36 %; scripted#7 still 0.015).
 
-use super::{Observations, OnlineParams, fit, observe};
+use super::{Observations, OnlineParams, fit};
 use crate::photometric::joint::{JointConfig, JointState, refine, regauge, vignette};
 use crate::photometric::metrics::{exposure_error_common_pct, gamma_align, vignette_rmse};
 use crate::photometric::synth::{
@@ -104,15 +104,7 @@ fn truth_start(label: &str, cam: &SynthCamera, video: &AeVideo, nf: usize) {
         eprintln!("{label}: truth start needs an EMoR response");
         return;
     };
-    let seen = observe(
-        &seq.frames,
-        &OnlineParams::default(),
-        w,
-        h,
-        None,
-        &NoProgress,
-    )
-    .unwrap();
+    let seen = super::diag_tests::tracked(&seq.frames, w, h);
     let r = fit(
         nf,
         w,

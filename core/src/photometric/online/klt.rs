@@ -193,31 +193,19 @@ fn align_step(
     let mut g = [0.0f32; 5];
     let mut ss = 0.0f32;
     let mut used = 0usize;
-    let mut k = 0;
-    for dy in -hw..=hw {
-        for dx in -hw..=hw {
-            let t = tmpl[k];
-            k += 1;
-            // All four pixels of the bilinear support must be unclipped: a clipped
-            // neighbour's true value is beyond the clip, so the interpolation is biased.
-            let [ox, oy] = warp.apply([dx as f32, dy as f32]);
-            let (x, y) = (q[0] + ox, q[1] + oy);
-            let [j, jx, jy] = lb.sample3(x, y)?;
-            if clipped(t) || lb.support_clipped(x, y) {
-                continue;
-            }
-            used += 1;
-            let t2 = (t - QUAD_CENTRE) * (t - QUAD_CENTRE);
-            let r = b.gain * t + b.bias + b.quad * t2 - j;
-            ss += r * r;
-            let jac = [jx, jy, -t, -1.0, -t2];
-            for i in 0..5 {
-                g[i] += jac[i] * r;
-                for m in i..5 {
-                    hm[i][m] += jac[i] * jac[m];
-                }
-            }
+    for (k, x, y) in window(hw, warp, q) {
+        let t = tmpl[k];
+        // All four pixels of the bilinear support must be unclipped: a clipped neighbour's
+        // true value is beyond the clip, so the interpolation is biased.
+        let [j, jx, jy] = lb.sample3(x, y)?;
+        if clipped(t) || lb.support_clipped(x, y) {
+            continue;
         }
+        used += 1;
+        let t2 = (t - QUAD_CENTRE) * (t - QUAD_CENTRE);
+        let r = b.gain * t + b.bias + b.quad * t2 - j;
+        ss += r * r;
+        normal_add(&mut hm, &mut g, &[jx, jy, -t, -1.0, -t2], r);
     }
     if used < tmpl.len() / 2 {
         return None;
@@ -240,6 +228,39 @@ fn align_step(
         [step[0], step[1], step[2], step[3], step[4]],
         (ss / used as f32).sqrt(),
     ))
+}
+
+/// Add one residual `r` with Jacobian row `jac` to the normal equations (`hm`'s upper
+/// triangle, `g` = Σ jac·r) of a Gauss-Newton match.
+#[inline]
+pub(crate) fn normal_add<const N: usize>(
+    hm: &mut [[f32; N]; N],
+    g: &mut [f32; N],
+    jac: &[f32; N],
+    r: f32,
+) {
+    for i in 0..N {
+        g[i] += jac[i] * r;
+        for m in i..N {
+            hm[i][m] += jac[i] * jac[m];
+        }
+    }
+}
+
+/// The template pixels of a `(2·hw + 1)²` window in raster order, laid out with `warp` around
+/// `q`: `(index, x, y)`.
+pub(crate) fn window(
+    hw: i32,
+    warp: Similarity,
+    q: [f32; 2],
+) -> impl Iterator<Item = (usize, f32, f32)> {
+    (-hw..=hw)
+        .flat_map(move |dy| (-hw..=hw).map(move |dx| (dx, dy)))
+        .enumerate()
+        .map(move |(i, (dx, dy))| {
+            let [ox, oy] = warp.apply([dx as f32, dy as f32]);
+            (i, q[0] + ox, q[1] + oy)
+        })
 }
 
 /// Apply the brightness part of an [`align_step`] step; `false` when the gain leaves the

@@ -19,7 +19,7 @@
 //! is flat the new samples can tip the gauge the other way, so the pass is opt-in
 //! (`tracking_passes: 2`).
 
-use super::klt::{Level, clipped};
+use super::klt::{Level, clipped, normal_add, window};
 use super::similarity::Similarity;
 use crate::error::CoreError;
 use crate::photometric::response::ResponseModel;
@@ -96,43 +96,32 @@ fn step(
     warp: Similarity,
     rm: &ResponseMatch,
 ) -> Option<([f64; 4], f32)> {
-    let mut hm = [[0.0f64; 4]; 4];
-    let mut g = [0.0f64; 4];
-    let mut ss = 0.0f64;
+    let mut hm = [[0.0f32; 4]; 4];
+    let mut g = [0.0f32; 4];
+    let mut ss = 0.0f32;
     let mut used = 0usize;
     let k = s.exp();
-    let mut i = 0;
-    for dy in -hw..=hw {
-        for dx in -hw..=hw {
-            let (t, u) = (tmpl[i], lin[i]);
-            i += 1;
-            let [ox, oy] = warp.apply([dx as f32, dy as f32]);
-            let (x, y) = (q[0] + ox, q[1] + oy);
-            let [j, jx, jy] = lb.sample3(x, y)?;
-            if clipped(t) || lb.support_clipped(x, y) {
-                continue;
-            }
-            used += 1;
-            let ku = k * u;
-            let (f, df) = rm.forward(ku);
-            let r = f64::from(f + bias - j);
-            ss += r * r;
-            let jac = [jx, jy, -df * ku, -1.0].map(f64::from);
-            for a in 0..4 {
-                g[a] += jac[a] * r;
-                for b in a..4 {
-                    hm[a][b] += jac[a] * jac[b];
-                }
-            }
+    for (i, x, y) in window(hw, warp, q) {
+        let (t, u) = (tmpl[i], lin[i]);
+        let [j, jx, jy] = lb.sample3(x, y)?;
+        if clipped(t) || lb.support_clipped(x, y) {
+            continue;
         }
+        used += 1;
+        let ku = k * u;
+        let (f, df) = rm.forward(ku);
+        let r = f + bias - j;
+        ss += r * r;
+        normal_add(&mut hm, &mut g, &[jx, jy, -df * ku, -1.0], r);
     }
     if used < tmpl.len() / 2 {
         return None;
     }
-    let m =
-        nalgebra::Matrix4::from_fn(|a, b| hm[a.min(b)][a.max(b)] + if a == b { 1e-9 } else { 0.0 });
-    let d = m.lu().solve(&nalgebra::Vector4::from(g))?;
-    Some(([d[0], d[1], d[2], d[3]], (ss / used as f64).sqrt() as f32))
+    let m = nalgebra::Matrix4::from_fn(|a, b| {
+        f64::from(hm[a.min(b)][a.max(b)]) + if a == b { 1e-9 } else { 0.0 }
+    });
+    let d = m.lu().solve(&nalgebra::Vector4::from(g.map(f64::from)))?;
+    Some(([d[0], d[1], d[2], d[3]], (ss / used as f32).sqrt()))
 }
 
 /// [`super::klt::refine_to_template`] with the response model: re-align `q` in `lb` (level 0)
@@ -150,19 +139,13 @@ pub(crate) fn refine_with_response(
     // The exposure ratio starts from the linearised patch means: the ratio to the birth can be
     // large, where the response saturates and Gauss-Newton from `k = 1` would stall.
     let (mut sum_t, mut sum_j) = (0.0f64, 0.0f64);
-    let mut i = 0;
-    for dy in -hw..=hw {
-        for dx in -hw..=hw {
-            let (t, u) = (tmpl[i], lin[i]);
-            i += 1;
-            let [ox, oy] = warp.apply([dx as f32, dy as f32]);
-            match lb.sample(&lb.data, q[0] + ox, q[1] + oy) {
-                Some(j) if !clipped(t) && !clipped(j) => {
-                    sum_t += f64::from(u);
-                    sum_j += f64::from(rm.inverse(j));
-                }
-                _ => {}
+    for (i, x, y) in window(hw, warp, q) {
+        match lb.sample(&lb.data, x, y) {
+            Some(j) if !clipped(tmpl[i]) && !clipped(j) => {
+                sum_t += f64::from(lin[i]);
+                sum_j += f64::from(rm.inverse(j));
             }
+            _ => {}
         }
     }
     let mut s = if sum_t > 0.0 && sum_j > 0.0 {
