@@ -37,6 +37,8 @@ mod vignette;
 #[cfg(test)]
 mod censor_tests;
 #[cfg(test)]
+mod online_tests;
+#[cfg(test)]
 mod spline_tests;
 #[cfg(test)]
 mod tests;

@@ -22,10 +22,11 @@
 use super::klt::{Level, clipped, normal_add, window};
 use super::similarity::Similarity;
 use crate::error::CoreError;
+use crate::photometric::emor::EMOR_SAMPLES;
 use crate::photometric::response::ResponseModel;
 
-/// Samples of the forward tables over `[0, 1]`.
-const TABLE: usize = 1024;
+/// Samples of the tables over `[0, 1]`: the response's own table ([`ResponseModel::forward_table`]).
+const TABLE: usize = EMOR_SAMPLES;
 
 /// A fitted response, tabulated for the match.
 pub(crate) struct ResponseMatch {
@@ -40,9 +41,7 @@ pub(crate) struct ResponseMatch {
 impl ResponseMatch {
     pub(crate) fn new(response: &ResponseModel) -> Self {
         let step = 1.0 / (TABLE - 1) as f64;
-        let fwd: Vec<f32> = (0..TABLE)
-            .map(|i| response.forward(i as f64 * step) as f32)
-            .collect();
+        let fwd: Vec<f32> = response.forward_table().iter().map(|&v| v as f32).collect();
         let dfwd = (0..TABLE)
             .map(|i| {
                 let (a, b) = (i.saturating_sub(1), (i + 1).min(TABLE - 1));
