@@ -51,10 +51,12 @@
 //! * `eval5`: seeds from 9000, the same generators again: a fifth held-out set, fixed
 //!   2026-12-05 (evening) before the second tracking pass (`online/response_match.rs`) was
 //!   chosen on the tuning splits, to confirm it once.
+//! * `eval6`: seeds from 10 000, the same generators again: a sixth held-out set, fixed
+//!   2026-12-06 before the gauge hysteresis of the second pass was tried, to confirm it once.
 //!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \
-//!     [tuning|saturated|scripted|lens|scenes|eval|eval2|eval3|eval4|eval5|shared] [cases] [frames] [width] [height]
+//!     [tuning|saturated|scripted|lens|scenes|eval|eval2|…|eval6|shared] [cases] [frames] [width] [height]
 //! ```
 //!
 //! The second tracking pass (2026-12-05, evening; `online/response_match.rs`). `eval4`'s two
@@ -159,7 +161,8 @@ use std::time::Instant;
 use caliper_core::io::ImageLimits;
 use caliper_core::photometric::dso::read_vignette_png;
 use caliper_core::photometric::metrics::{
-    exposure_error_common_pct, exposure_error_pct, gamma_align, vignette_rmse,
+    exposure_error_common_pct, exposure_error_parts_pct, exposure_error_pct, gamma_align,
+    vignette_rmse,
 };
 use caliper_core::photometric::synth::{
     AeVideo, ExposureProgram, Rng, SceneForm, SynthCamera, VignetteForm, clipped_fraction,
@@ -216,7 +219,10 @@ fn eval_program_mix(i: usize, rng: &mut Rng, auto: ExposureProgram) -> ExposureP
 
 fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamera, AeVideo) {
     // `eval2` … `eval5`: `eval`'s generators with fresh seeds (see the module notes).
-    let eval = matches!(set, "eval" | "eval2" | "eval3" | "eval4" | "eval5");
+    let eval = matches!(
+        set,
+        "eval" | "eval2" | "eval3" | "eval4" | "eval5" | "eval6"
+    );
     let saturated = set == "saturated";
     let scripted = set == "scripted";
     let lens = set == "lens";
@@ -231,6 +237,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         "eval3" => (7000 + i as u64, 97),
         "eval4" => (8000 + i as u64, 101),
         "eval5" => (9000 + i as u64, 103),
+        "eval6" => (10_000 + i as u64, 107),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));
@@ -461,7 +468,11 @@ fn score(
             let vig = vignette_rmse(&vmap, truth_vig, alpha);
             let exp0 = exposure_error_pct(&r.exposure_ratios, truth_e, alpha);
             // The shared score's exposure error: with the best common scale, not frame 0's.
-            let exp = exposure_error_common_pct(&r.exposure_ratios, truth_e, alpha);
+            // A video fitted in parts (`broken_tracks: per_part`): each part's own scale.
+            let exp = match &r.exposure_parts {
+                Some(parts) => exposure_error_parts_pct(&r.exposure_ratios, truth_e, alpha, parts),
+                None => exposure_error_common_pct(&r.exposure_ratios, truth_e, alpha),
+            };
             let d: Vec<f64> = r
                 .exposure_ratios
                 .iter()
@@ -491,6 +502,10 @@ fn score(
                 r.model.response.forward(0.5),
                 100.0 * sat
             );
+            if let Some(parts) = &r.exposure_parts {
+                let n = parts.iter().max().map_or(1, |m| m + 1);
+                println!("    fitted in {n} parts (broken tracks), exposures scored per part");
+            }
             println!(
                 "    vignette: {} ({})",
                 r.vignette_choice.model, r.vignette_choice.reason

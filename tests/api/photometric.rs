@@ -513,5 +513,40 @@ async fn photometric_online_refuses_frames_that_no_track_connects() {
     assert_eq!(done["error"]["code"], "invalid_input", "{done}");
     let msg = done["error"]["message"].as_str().unwrap_or_default();
     assert!(msg.contains("2 parts") && msg.contains("15-29"), "{msg}");
+    assert!(
+        msg.contains("broken_tracks"),
+        "the message names the option: {msg}"
+    );
+    // Asked to, the job fits the response and vignetting from both parts and labels the
+    // frames; exposures have no common scale, so no `times.txt` is written.
+    let id = s
+        .job(json!({"kind": "photometric_online", "dataset": ds, "device": "cut-cam", "sensor": "cam0", "params": {"options": {"max_features": 150, "broken_tracks": "per_part"}}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    let parts = doc["parameters"]["exposure_parts"]
+        .as_array()
+        .expect("exposure_parts");
+    assert_eq!(parts.len(), 30);
+    assert_eq!((parts[14].as_u64(), parts[15].as_u64()), (Some(0), Some(1)));
+    assert_eq!(doc["quality"]["exposure_parts"], 2, "{doc}");
+    let r = reqwest::get(s.url(&format!("/v1/jobs/{id}/artifacts/times.txt")))
+        .await
+        .expect("request");
+    assert_eq!(r.status(), 404);
+    let pcalib = artifact_text(&s, &id, "pcalib.txt").await;
+    let inv = dso::read_pcalib(&pcalib).expect("pcalib");
+    let cam = SynthCamera::reference(160, 120, 105);
+    let (_, resp_rmse) = metrics::gamma_align(&inv, &cam.response.inverse(256));
+    assert!(resp_rmse < 0.02, "response RMSE {resp_rmse}");
+    // An unknown mode is refused at the edge.
+    let (st, body) = s
+        .post_json(
+            "/v1/jobs",
+            &json!({"kind": "photometric_online", "dataset": ds, "params": {"options": {"broken_tracks": "join"}}}),
+        )
+        .await;
+    assert_eq!(st, 422, "{body}");
     s.stop().await;
 }

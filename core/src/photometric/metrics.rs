@@ -95,9 +95,56 @@ pub fn exposure_error_common_pct(fit: &[f64], truth: &[f64], alpha: f64) -> f64 
     100.0 * (ss / d.len() as f64).sqrt()
 }
 
+/// [`exposure_error_common_pct`] for a video fitted in parts (`broken_tracks: per_part`):
+/// each part gets its own best scale, since nothing ties the parts' scales together; the RMS
+/// runs over all frames. `parts[i]` is frame `i`'s part.
+pub fn exposure_error_parts_pct(fit: &[f64], truth: &[f64], alpha: f64, parts: &[usize]) -> f64 {
+    if fit.is_empty() || fit.len() != truth.len() || parts.len() != fit.len() {
+        return f64::NAN;
+    }
+    let d: Vec<f64> = fit
+        .iter()
+        .zip(truth)
+        .map(|(f, t)| alpha * f.max(1e-300).ln() - t.max(1e-300).ln())
+        .collect();
+    let n = parts.iter().copied().max().map_or(0, |m| m + 1);
+    let mut sum = vec![(0.0, 0usize); n];
+    for (x, &p) in d.iter().zip(parts) {
+        sum[p].0 += x;
+        sum[p].1 += 1;
+    }
+    let ss: f64 = d
+        .iter()
+        .zip(parts)
+        .map(|(x, &p)| ((x - sum[p].0 / sum[p].1 as f64).exp() - 1.0).powi(2))
+        .sum();
+    100.0 * (ss / d.len() as f64).sqrt()
+}
+
 #[cfg(test)]
 mod tests {
-    use super::{exposure_error_common_pct, exposure_error_pct};
+    use super::{exposure_error_common_pct, exposure_error_parts_pct, exposure_error_pct};
+
+    /// Each part's own factor costs nothing; one part alone is the common-scale error.
+    #[test]
+    fn per_part_exposure_error_ignores_each_parts_factor() {
+        let truth: Vec<f64> = (0..40).map(|k| 1.0 + 0.05 * f64::from(k)).collect();
+        let parts: Vec<usize> = (0..40).map(|k| usize::from(k >= 25)).collect();
+        let fit: Vec<f64> = truth
+            .iter()
+            .zip(&parts)
+            .map(|(t, &p)| t * if p == 0 { 2.0 } else { 0.1 })
+            .collect();
+        assert!(exposure_error_parts_pct(&fit, &truth, 1.0, &parts) < 1e-9);
+        assert!(exposure_error_common_pct(&fit, &truth, 1.0) > 50.0);
+        let one = vec![0; 40];
+        let mut noisy = truth.clone();
+        noisy[3] *= 1.05;
+        let a = exposure_error_parts_pct(&noisy, &truth, 1.0, &one);
+        let b = exposure_error_common_pct(&noisy, &truth, 1.0);
+        assert!((a - b).abs() < 1e-12 && a > 0.1, "{a} {b}");
+        assert!(exposure_error_parts_pct(&noisy, &truth, 1.0, &one[..3]).is_nan());
+    }
 
     /// A common factor (and the gauge exponent) cost nothing; one bad frame 0 charges every
     /// frame relative to frame 0 but only itself with the common scale.

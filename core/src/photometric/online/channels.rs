@@ -38,7 +38,7 @@ use super::super::response::ResponseModel;
 use super::super::spline::RadialSpline;
 use super::super::{PhotoImage, check_stack};
 use super::center::r2_at;
-use super::gauge::OtherChannel;
+use super::gauge::{GaugeContext, OtherChannel};
 use super::klt::Level;
 use super::response_match::{ResponseMatch, recoverable};
 use super::{GRAD_HALF_WEIGHT, Observations, OnlineParams, OnlineResult, fit, observe};
@@ -122,7 +122,16 @@ pub fn photometric_online_rgb(
     let mut seen = observe(&luma, params, w, h, None, progress)?;
     let mut passes = 1;
     for pass in 2..=params.tracking_passes {
-        let again = fit(frames.len(), w, h, seen.clone(), params, &[], progress).and_then(|r| {
+        let again = fit(
+            frames.len(),
+            w,
+            h,
+            seen.clone(),
+            params,
+            GaugeContext::default(),
+            progress,
+        )
+        .and_then(|r| {
             let rm = ResponseMatch::new(&r.model.response);
             observe(&luma, params, w, h, Some(&rm), progress)
         });
@@ -141,7 +150,18 @@ pub fn photometric_online_rgb(
         obs: &o.obs,
         n_points: o.n_points as usize,
     });
-    let mut result = fit(frames.len(), w, h, g, params, &others, progress)?;
+    let mut result = fit(
+        frames.len(),
+        w,
+        h,
+        g,
+        params,
+        GaugeContext {
+            others: &others,
+            prefer: None,
+        },
+        progress,
+    )?;
     result.tracking_passes = passes;
     let log_e: Vec<f64> = result.exposure_ratios.iter().map(|e| e.ln()).collect();
     let v = result.model.vignette.as_ref().map_or([0.0; 3], |m| m.v);

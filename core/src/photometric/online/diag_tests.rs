@@ -92,7 +92,7 @@
 //! ones still include such cases. Untried: checking a re-found ghost forward-backward or over
 //! a few frames before merging, or merging only the centre sample.
 
-use super::{Observations, OnlineParams, fit, observe};
+use super::{GaugeContext, Observations, OnlineParams, fit, observe};
 use crate::photometric::joint::{Censor, Obs};
 use crate::photometric::metrics::{
     exposure_error_common_pct, exposure_error_pct, gamma_align, vignette_rmse,
@@ -362,7 +362,7 @@ fn run_seeded(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3
             ..OnlineParams::default()
         };
         let nobs = seen.obs.len();
-        let r = fit(nf, w, h, seen, &p, &[], &NoProgress).unwrap();
+        let r = fit(nf, w, h, seen, &p, GaugeContext::default(), &NoProgress).unwrap();
         let fitinv = crate::photometric::InverseResponse {
             values: r.model.inverse_256.clone(),
         };
@@ -428,7 +428,7 @@ fn run_seeded(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3
         // The second pass as shipped: matches re-aligned through the first fit's response.
         let p = OnlineParams::default();
         let first = tracked(&seq.frames, w, h);
-        let r = fit(nf, w, h, first, &p, &[], &NoProgress).unwrap();
+        let r = fit(nf, w, h, first, &p, GaugeContext::default(), &NoProgress).unwrap();
         let rm = super::response_match::ResponseMatch::new(&r.model.response);
         let seen = observe(&seq.frames, &p, w, h, Some(&rm), &NoProgress).unwrap();
         let _ = drift(&video, &seq.frames, &seen);
@@ -447,7 +447,16 @@ fn run_seeded(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3
         score("lintrack", reread(&seq.frames, &seen), Some(truth_m));
         // The same with the response of a first default fit (what a second pass would have).
         let first = tracked(&seq.frames, w, h);
-        let r = fit(nf, w, h, first, &OnlineParams::default(), &[], &NoProgress).unwrap();
+        let r = fit(
+            nf,
+            w,
+            h,
+            first,
+            &OnlineParams::default(),
+            GaugeContext::default(),
+            &NoProgress,
+        )
+        .unwrap();
         let lin = linearised(&r.model.inverse_256, &seq.frames);
         let seen = tracked(&lin, w, h);
         let again = reread(&seq.frames, &seen);

@@ -63,7 +63,7 @@
 //!   but the splits are unchanged (tuning 11/12, medians 0.0009 / 0.0018 / 0.42 %; saturated
 //!   12/12, 0.0008 / 0.0010 / 0.36 %; scripted#7 still 0.015).
 
-use super::{Observations, OnlineParams, fit};
+use super::{GaugeContext, Observations, OnlineParams, fit};
 use crate::photometric::joint::{JointConfig, JointState, refine, regauge, vignette};
 use crate::photometric::metrics::{exposure_error_common_pct, gamma_align, vignette_rmse};
 use crate::photometric::synth::{
@@ -111,7 +111,7 @@ fn truth_start(label: &str, cam: &SynthCamera, video: &AeVideo, nf: usize) {
         h,
         seen.clone(),
         &OnlineParams::default(),
-        &[],
+        GaugeContext::default(),
         &NoProgress,
     )
     .unwrap();

@@ -5,8 +5,12 @@
 //! 1.. that the thresholds and constants were looked at with:
 //! `cargo test -p caliper-core --lib online::feature_tests -- --ignored --nocapture`.
 
-use super::{CenterMode, Channels, OnlineParams, photometric_online, photometric_online_rgb};
-use crate::photometric::metrics::{exposure_error_pct, gamma_align, vignette_rmse};
+use super::{
+    BrokenTracks, CenterMode, Channels, OnlineParams, photometric_online, photometric_online_rgb,
+};
+use crate::photometric::metrics::{
+    exposure_error_parts_pct, exposure_error_pct, gamma_align, vignette_rmse,
+};
 use crate::photometric::synth::{
     AeVideo, SynthCamera, render_ae_cut, render_ae_video, render_ae_video_rgb,
 };
@@ -353,4 +357,45 @@ fn a_cut_between_scenes_is_refused() {
     );
     // Each half alone is one part and fits.
     assert!(photometric_online(&frames[..15], &p, &NoProgress).is_ok());
+}
+
+/// The same cut with `broken_tracks: per_part`: the fit uses both halves for the response
+/// and vignetting, labels every frame with its part and gives each part's exposures relative
+/// to its own first frame; those match the truth of each half (rendered separately here).
+#[test]
+fn a_cut_between_scenes_fits_per_part_when_asked() {
+    let (w, h, n) = (160, 120, 15);
+    let frames = render_ae_cut(w, h, [105, 106], n);
+    let p = OnlineParams {
+        max_features: 150,
+        broken_tracks: BrokenTracks::PerPart,
+        ..OnlineParams::default()
+    };
+    let r = photometric_online(&frames, &p, &NoProgress).expect("fits per part");
+    let parts = r.exposure_parts.as_ref().expect("two parts reported");
+    let want: Vec<usize> = (0..2 * n).map(|i| usize::from(i >= n)).collect();
+    assert_eq!(parts, &want);
+    // Each part starts at ratio 1 (its first frame, in the part's own scale).
+    assert!((r.exposure_ratios[0] - 1.0).abs() < 1e-12);
+    assert!((r.exposure_ratios[n] - 1.0).abs() < 1e-12);
+    let cam = SynthCamera::reference(w, h, 105);
+    let (alpha, resp) = gamma_align(
+        &InverseResponse::new(r.model.inverse_256.clone()).expect("inverse"),
+        &cam.response.inverse(256),
+    );
+    assert!(resp < 0.02, "response RMSE {resp}");
+    let truth: Vec<f64> = [105, 106]
+        .iter()
+        .flat_map(|&seed| {
+            let cam = SynthCamera::reference(w, h, seed);
+            render_ae_video(&cam, n, &AeVideo::default()).exposures
+        })
+        .collect();
+    // Frame 0 has no unclipped sample (see above): its exposure rests on bounds only, so it
+    // is left out of the score.
+    let err = exposure_error_parts_pct(&r.exposure_ratios[1..], &truth[1..], alpha, &parts[1..]);
+    assert!(err < 5.0, "exposure error per part {err} %");
+    // A linked video reports no parts even with the option.
+    let one = photometric_online(&frames[n..], &p, &NoProgress).expect("one part");
+    assert!(one.exposure_parts.is_none());
 }

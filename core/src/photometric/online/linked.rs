@@ -14,7 +14,14 @@
 //! least (or at most) so bright, so across a break it limits the factor between the parts to an
 //! interval. On `eval#1` (a linear camera under steps, tracks broken at frame 35) that interval
 //! happened to be narrow and the exposures came out 2.4 % off; on `eval2#7` it was not. Telling
-//! the two apart would need the width of that interval; until then both are refused.
+//! the two apart would need the width of that interval; until then both are refused by
+//! default.
+//!
+//! The response and vignetting do not need the link: every part constrains them on its own.
+//! `broken_tracks: per_part` therefore fits all parts together, each with its own free
+//! exposure scale, and reports each part's exposures relative to its own first frame with the
+//! part of every frame (`exposure_parts`), which is what a user who only needs DSO's
+//! `pcalib.txt` and `vignette.png` from a video with a cut or a blown-out stretch wants.
 
 use super::super::joint::Obs;
 use crate::error::{CoreError, CoreResult};
@@ -52,6 +59,63 @@ pub(super) fn frame_parts(obs: &[Obs], frames: usize) -> Vec<Vec<usize>> {
     parts
 }
 
+/// The parts of [`frame_parts`] that hold a measured sample, in order of their first frame.
+fn sampled_parts(obs: &[Obs], frames: usize) -> Vec<Vec<usize>> {
+    let mut sampled = vec![false; frames];
+    for o in obs.iter().filter(|o| o.measured()) {
+        if let Some(s) = sampled.get_mut(o.frame as usize) {
+            *s = true;
+        }
+    }
+    frame_parts(obs, frames)
+        .into_iter()
+        .filter(|p| p.iter().any(|&f| sampled[f]))
+        .collect()
+}
+
+/// With more than one part (`broken_tracks: per_part`): the part of every frame, as an index
+/// into the sampled parts in order of their first frame. A frame without a measured sample
+/// belongs to the part of the nearest earlier frame that has one (the first part for leading
+/// frames): its exposure is fitted from its censored bounds and its neighbours', as in a
+/// linked video. `None` when the video is one part.
+pub(super) fn part_labels(obs: &[Obs], frames: usize) -> Option<Vec<usize>> {
+    let parts = sampled_parts(obs, frames);
+    if parts.len() <= 1 {
+        return None;
+    }
+    let mut label = vec![usize::MAX; frames];
+    for (i, p) in parts.iter().enumerate() {
+        for &f in p {
+            label[f] = i;
+        }
+    }
+    let mut last = 0;
+    for l in &mut label {
+        if *l == usize::MAX {
+            *l = last;
+        } else {
+            last = *l;
+        }
+    }
+    Some(label)
+}
+
+/// Divide each part's exposures by the exposure of the part's first frame, so that every
+/// ratio is relative to a frame it shares a scale with (part 0 starts at frame 0, which the
+/// fit holds at 1).
+pub(super) fn normalise_parts(exposures: &mut [f64], labels: &[usize]) {
+    let parts = labels.iter().copied().max().map_or(0, |m| m + 1);
+    let mut first: Vec<Option<f64>> = vec![None; parts];
+    for (e, &l) in exposures.iter().zip(labels) {
+        first[l].get_or_insert(*e);
+    }
+    for (e, &l) in exposures.iter_mut().zip(labels) {
+        if let Some(f) = first[l].filter(|f| *f > 0.0) {
+            *e /= f;
+        }
+    }
+}
+
 /// `Ok` when every frame with a measured sample is tied to every other such frame; otherwise
 /// an input error that names the parts (as frame ranges, 0-based) and what to do.
 ///
@@ -60,16 +124,7 @@ pub(super) fn frame_parts(obs: &[Obs], frames: usize) -> Vec<Vec<usize>> {
 /// their neighbours' and the censored bounds, as before; refusing a whole video for them would
 /// be worse than the exposure of one unusable frame.
 pub(super) fn require_linked(obs: &[Obs], frames: usize) -> CoreResult<()> {
-    let mut sampled = vec![false; frames];
-    for o in obs.iter().filter(|o| o.measured()) {
-        if let Some(s) = sampled.get_mut(o.frame as usize) {
-            *s = true;
-        }
-    }
-    let parts: Vec<Vec<usize>> = frame_parts(obs, frames)
-        .into_iter()
-        .filter(|p| p.iter().any(|&f| sampled[f]))
-        .collect();
+    let parts = sampled_parts(obs, frames);
     if parts.len() <= 1 {
         return Ok(());
     }
@@ -82,7 +137,9 @@ pub(super) fn require_linked(obs: &[Obs], frames: usize) -> CoreResult<()> {
         "the tracks do not tie all frames' exposures together: the video falls into {} parts \
          that share no measured scene point (frames {}, from 0 in the order fitted), so \
          their exposures have no common scale; this happens when most of a frame is clipped \
-         or the view jumps. Submit the frames of one part, or a video with less clipping",
+         or the view jumps. Submit the frames of one part or a video with less clipping, or set \
+         `broken_tracks: per_part` to fit the response and vignetting from all parts with \
+         each part's exposures relative to its own first frame",
         parts.len(),
         names.join("; ")
     )))

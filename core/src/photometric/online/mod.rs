@@ -59,7 +59,7 @@ use super::vignette::VignetteModel;
 use super::{FitDiagnostics, PHOTOMETRIC_SCHEMA, PhotoImage, PhotometricModel, check_stack};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
-use gauge::OtherChannel;
+use gauge::GaugeContext;
 pub(crate) use observe::{GRAD_HALF_WEIGHT, Observations, observe};
 use response_match::ResponseMatch;
 pub use vig_model::VignetteChoice;
@@ -116,6 +116,24 @@ pub struct OnlineParams {
     /// helps scenes of occluding objects (8 → 11 of 12 within the targets) and costs elsewhere
     /// (55 against 54 of 60 in all; `response_match`).
     pub tracking_passes: usize,
+    /// When the tracks break the video into parts that share no scene point (a cut, a jump,
+    /// a stretch clipped white): `refuse` (default) fails with `invalid_input` naming the
+    /// parts; `per_part` fits the response and vignetting from all parts and gives each
+    /// part's exposures relative to its own first frame (`exposure_parts` in the result).
+    pub broken_tracks: BrokenTracks,
+}
+
+/// What `photometric_online` does with a video whose tracks break into parts that share no
+/// scene point, so that their exposures have no common scale.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub enum BrokenTracks {
+    /// Fail and name the parts: exposures across a break have no common scale.
+    #[default]
+    Refuse,
+    /// Fit response and vignetting from every part; exposures per part.
+    PerPart,
 }
 
 impl Default for OnlineParams {
@@ -137,6 +155,7 @@ impl Default for OnlineParams {
             vignette_center: CenterMode::Fixed,
             vignette_model: VignetteKind::Auto,
             tracking_passes: 1,
+            broken_tracks: BrokenTracks::Refuse,
         }
     }
 }
@@ -216,6 +235,11 @@ pub struct OnlineResult {
     /// the linearised frames and the previous fit was kept).
     #[serde(default)]
     pub tracking_passes: usize,
+    /// With `broken_tracks: per_part` and a video whose tracks broke: the part of each frame
+    /// (0 = the part holding frame 0); `exposure_ratios` and `initial_exposure_ratios` are
+    /// then relative to the first frame of each frame's part. Absent for a linked video.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exposure_parts: Option<Vec<usize>>,
 }
 
 /// Calibrate response, vignetting and exposures from an auto-exposure video.
@@ -233,12 +257,33 @@ pub fn photometric_online(
     }
     let (w, h) = check_stack(frames, 3)?;
     let seen = observe(frames, params, w, h, None, progress)?;
-    let mut result = fit(frames.len(), w, h, seen, params, &[], progress)?;
+    let mut result = fit(
+        frames.len(),
+        w,
+        h,
+        seen,
+        params,
+        GaugeContext::default(),
+        progress,
+    )?;
     result.tracking_passes = 1;
     for pass in 2..=params.tracking_passes {
         let rm = ResponseMatch::new(&result.model.response);
-        let again = observe(frames, params, w, h, Some(&rm), progress)
-            .and_then(|seen| fit(frames.len(), w, h, seen, params, &[], progress));
+        let prefer = result.model.response.forward(0.5);
+        let again = observe(frames, params, w, h, Some(&rm), progress).and_then(|seen| {
+            fit(
+                frames.len(),
+                w,
+                h,
+                seen,
+                params,
+                GaugeContext {
+                    prefer: Some(prefer),
+                    ..GaugeContext::default()
+                },
+                progress,
+            )
+        });
         match again {
             Ok(next) => {
                 result = OnlineResult {
@@ -262,7 +307,7 @@ pub(crate) fn fit(
     h: usize,
     seen: Observations,
     params: &OnlineParams,
-    others: &[OtherChannel<'_>],
+    gauge_ctx: GaugeContext<'_>,
     progress: &dyn Progress,
 ) -> CoreResult<OnlineResult> {
     let Observations {
@@ -272,7 +317,13 @@ pub(crate) fn fit(
         mean_len,
         pos,
     } = seen;
-    linked::require_linked(&obs, nf)?;
+    let parts = match params.broken_tracks {
+        BrokenTracks::Refuse => {
+            linked::require_linked(&obs, nf)?;
+            None
+        }
+        BrokenTracks::PerPart => linked::part_labels(&obs, nf),
+    };
     // Frame-to-frame exposure ratios under the mean response.
     let g0 = ResponseModel::default().inverse(4096);
     let lg = |o: &Obs| g0.eval(f64::from(o.value)).max(1e-6).ln();
@@ -327,7 +378,7 @@ pub(crate) fn fit(
         &mut state,
         progress,
     )?;
-    let initial: Vec<f64> = state.log_e.iter().map(|l| l.exp()).collect();
+    let mut initial: Vec<f64> = state.log_e.iter().map(|l| l.exp()).collect();
     let gamma_gauge = match params.gamma_gauge {
         Some(m) => {
             gauge_start(&mut state, m);
@@ -340,7 +391,7 @@ pub(crate) fn fit(
                 &state,
                 huber,
                 params.fit_vignette,
-                others,
+                gauge_ctx,
                 progress,
             )?;
             // Radiances of the points left out of the profile: the start's, moved to the
@@ -403,10 +454,15 @@ pub(crate) fn fit(
         }
         model
     });
+    let mut exposure_ratios: Vec<f64> = state.log_e.iter().map(|l| l.exp()).collect();
+    if let Some(labels) = &parts {
+        linked::normalise_parts(&mut exposure_ratios, labels);
+        linked::normalise_parts(&mut initial, labels);
+    }
     Ok(OnlineResult {
         schema: PHOTOMETRIC_SCHEMA.to_string(),
         model: PhotometricModel::new(response, vignette),
-        exposure_ratios: state.log_e.iter().map(|l| l.exp()).collect(),
+        exposure_ratios,
         initial_exposure_ratios: initial,
         tracks: used_tracks,
         mean_track_length: mean_len,
@@ -422,5 +478,6 @@ pub(crate) fn fit(
         vignette_choice,
         channel_responses: None,
         tracking_passes: 1,
+        exposure_parts: parts,
     })
 }

@@ -112,6 +112,7 @@ impl Kind for PhotometricOnline {
             "converged": r.diagnostics.converged,
             "vignette_center_estimated": r.vignette_center.estimated,
             "vignette_model": r.vignette_choice.model,
+            "exposure_parts": r.exposure_parts.as_ref().map_or(1, |l| l.iter().max().map_or(1, |m| m + 1)),
         });
         let mut artifacts = response_artifacts(&r.model)?;
         // One DSO pcalib per channel (DSO reads one response; pick the channel it images).
@@ -126,26 +127,31 @@ impl Kind for PhotometricOnline {
         if let Some(v) = &r.model.vignette {
             artifacts.extend(vignette_artifacts(v)?);
         }
-        let entries = match &clip {
-            // A clip's own times, frames named by their index in the clip.
-            Some(c) => c
-                .frames
-                .iter()
-                .zip(&r.exposure_ratios)
-                .map(|(&(index, pts_s), &e)| dso::TimeEntry {
-                    id: format!("{index:06}"),
-                    timestamp: pts_s,
-                    exposure_ms: e,
-                })
-                .collect(),
-            None => times_entries(&files, &r.exposure_ratios, p.frame_interval_s),
-        };
-        artifacts.push(text_artifact("times.txt", dso::write_times(&entries)));
-        let ts: Vec<f64> = entries.iter().map(|e| e.timestamp).collect();
-        artifacts.push(Artifact::svg(
-            "exposures.svg",
-            plot::exposure_svg(&r.exposure_ratios, Some(&ts), None),
-        ));
+        // Exposures of a video whose tracks broke have no common scale across its parts
+        // (`broken_tracks: per_part`): DSO's `times.txt` and the plot would show jumps that
+        // are not in the camera, so they are left out; the parameters hold the ratios per part.
+        if r.exposure_parts.is_none() {
+            let entries = match &clip {
+                // A clip's own times, frames named by their index in the clip.
+                Some(c) => c
+                    .frames
+                    .iter()
+                    .zip(&r.exposure_ratios)
+                    .map(|(&(index, pts_s), &e)| dso::TimeEntry {
+                        id: format!("{index:06}"),
+                        timestamp: pts_s,
+                        exposure_ms: e,
+                    })
+                    .collect(),
+                None => times_entries(&files, &r.exposure_ratios, p.frame_interval_s),
+            };
+            artifacts.push(text_artifact("times.txt", dso::write_times(&entries)));
+            let ts: Vec<f64> = entries.iter().map(|e| e.timestamp).collect();
+            artifacts.push(Artifact::svg(
+                "exposures.svg",
+                plot::exposure_svg(&r.exposure_ratios, Some(&ts), None),
+            ));
+        }
         let mut parameters = to_value(&r)?;
         if let Some(c) = clip {
             parameters["clip"] = c.summary;
