@@ -81,15 +81,23 @@ pub(crate) fn observe(
     let mut track_len: Vec<u32> = Vec::new();
     let mut prev: Option<Pyramid> = None;
     let mut chain = Similarity::IDENTITY;
+    let build = |im: &PhotoImage| Pyramid::new(w, h, normalised(im), params.pyramid_levels);
+    // The next frame's pyramid, built while this frame's tracks are matched (the build is
+    // serial, the matching parallel: overlapping them keeps both cores busy).
+    let mut pending: Option<Pyramid> = None;
     for (k, im) in frames.iter().enumerate() {
         progress.check()?;
         let stage = if rm.is_some() { "retrack" } else { "track" };
         progress.report(stage, k as u64, frames.len() as u64);
-        let pyr = Pyramid::new(w, h, normalised(im), params.pyramid_levels);
+        let pyr = pending.take().unwrap_or_else(|| build(im));
         if let Some(pp) = &prev {
             // Tracks at the age limit end here, before they cost a match.
             tracks.retain(|t| track_len[t.id] < MAX_TRACK_AGE);
-            let tracked = track_and_refine(pp, &pyr, &tracks, &cfg, &mut chain, rm);
+            let (tracked, next) = rayon::join(
+                || track_and_refine(pp, &pyr, &tracks, &cfg, &mut chain, rm),
+                || frames.get(k + 1).map(build),
+            );
+            pending = next;
             let mut kept = Vec::with_capacity(tracks.len());
             for (t, q) in tracks.drain(..).zip(tracked) {
                 if let Some(q) = q.filter(|q| {
