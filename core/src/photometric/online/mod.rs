@@ -112,11 +112,12 @@ pub struct OnlineParams {
     pub vignette_model: VignetteKind,
     /// Tracking passes: 1 (default); 2 tracks the video again with every match re-aligned to
     /// its birth patch through the first fit's response (`J = f(k·f⁻¹(T))`, Kim & Pollefeys
-    /// 2008) and fits again, the first pass's gauge one more candidate of the second profile
-    /// (`gauge`), for about twice the time. More accurate (the sweep's tuning sets 57 against
-    /// 54 of 60 sequences within the accuracy targets, held-out `eval5` 10 against 9 and
-    /// `eval6` 12 against 11 of 12), but opt-in while it doubles the time: 200 frames at
-    /// 320×240 take 8.5 s median and up to 10.6 s on 2 cores against 4.3 s and 5.2 s.
+    /// 2008) and fits again (keeping the first fit's gauge `f(0.5)` when it explains the new
+    /// samples at least as well), for about twice the time. More accurate (the sweep's tuning
+    /// sets 57 against 54 of 60 sequences within the accuracy targets, held-out `eval5` 10
+    /// against 9 and `eval6` 12 against 11 of 12), but opt-in while it doubles the time: 200
+    /// frames at 320×240 take 8.5 s median and up to 10.6 s on 2 cores against 4.3 s and
+    /// 5.2 s.
     pub tracking_passes: usize,
     /// When the tracks break the video into parts that share no scene point (a cut, a jump,
     /// a stretch clipped white): `refuse` (default) fails with `invalid_input` naming the
