@@ -525,8 +525,8 @@ fn score(
                 r.model.response.forward(0.5),
                 100.0 * sat
             );
-            if let Some(parts) = &r.exposure_parts {
-                let n = parts.iter().max().map_or(1, |m| m + 1);
+            if r.exposure_parts.is_some() {
+                let n = r.exposure_part_count();
                 println!("    fitted in {n} parts (broken tracks), exposures scored per part");
             }
             println!(

@@ -254,7 +254,7 @@ fn sample_channel(
             if clipped(v)
                 || [i0, i0 + 1, i0 + level.w, i0 + level.w + 1]
                     .iter()
-                    .any(|&j| level.data.get(j).is_none_or(|&d| clipped(d)))
+                    .any(|&j| level.value(j).is_none_or(clipped))
             {
                 continue;
             }

@@ -11,50 +11,45 @@
 use super::response_match::{ResponseMatch, refine_with_response};
 use super::similarity::Similarity;
 
-/// One pyramid level: intensity and central-difference gradients.
+/// One pyramid level: intensity and central-difference gradients, interleaved per pixel
+/// (`[value, ∂x, ∂y]`): the tracker's inner loop ([`Level::sample3`]) then reads one cache line
+/// per corner instead of three (a fifth of the tracking time went there).
 pub(crate) struct Level {
     pub w: usize,
     pub h: usize,
-    pub data: Vec<f32>,
-    pub gx: Vec<f32>,
-    pub gy: Vec<f32>,
-    /// The three above interleaved per pixel, for [`Level::sample3`]: the tracker's inner loop
-    /// then reads one cache line per corner instead of three (a fifth of the tracking time
-    /// went there).
-    dg: Vec<[f32; 3]>,
+    px: Vec<[f32; 3]>,
 }
+
+/// Channels of a [`Level`] for [`Level::sample`].
+pub(crate) const VALUE: usize = 0;
+pub(crate) const GRAD_X: usize = 1;
+pub(crate) const GRAD_Y: usize = 2;
 
 impl Level {
     pub(crate) fn new(w: usize, h: usize, data: Vec<f32>) -> Self {
-        let mut gx = vec![0.0; w * h];
-        let mut gy = vec![0.0; w * h];
+        let mut px: Vec<[f32; 3]> = data.iter().map(|&d| [d, 0.0, 0.0]).collect();
         for y in 0..h {
             for x in 0..w {
                 let i = y * w + x;
                 let (xl, xr) = (x.saturating_sub(1), (x + 1).min(w - 1));
                 let (yu, yd) = (y.saturating_sub(1), (y + 1).min(h - 1));
-                gx[i] = (data[y * w + xr] - data[y * w + xl]) / (xr - xl).max(1) as f32;
-                gy[i] = (data[yd * w + x] - data[yu * w + x]) / (yd - yu).max(1) as f32;
+                px[i][GRAD_X] = (data[y * w + xr] - data[y * w + xl]) / (xr - xl).max(1) as f32;
+                px[i][GRAD_Y] = (data[yd * w + x] - data[yu * w + x]) / (yd - yu).max(1) as f32;
             }
         }
-        let dg = data
-            .iter()
-            .zip(gx.iter().zip(&gy))
-            .map(|(&d, (&x, &y))| [d, x, y])
-            .collect();
-        Self {
-            w,
-            h,
-            data,
-            gx,
-            gy,
-            dg,
-        }
+        Self { w, h, px }
     }
 
-    /// Bilinear sample of `buf` at `(x, y)`; `None` outside `[0, w−1] × [0, h−1]`.
+    /// Intensity of pixel `i` (row-major), `None` outside the level.
     #[inline]
-    pub fn sample(&self, buf: &[f32], x: f32, y: f32) -> Option<f32> {
+    pub fn value(&self, i: usize) -> Option<f32> {
+        self.px.get(i).map(|p| p[VALUE])
+    }
+
+    /// Bilinear sample of channel `c` ([`VALUE`], [`GRAD_X`], [`GRAD_Y`]) at `(x, y)`; `None`
+    /// outside `[0, w−1] × [0, h−1]`.
+    #[inline]
+    pub fn sample(&self, c: usize, x: f32, y: f32) -> Option<f32> {
         if !(x >= 0.0 && y >= 0.0 && x <= (self.w - 1) as f32 && y <= (self.h - 1) as f32) {
             return None;
         }
@@ -64,8 +59,8 @@ impl Level {
         let y0 = (y as usize).min(self.h.saturating_sub(2));
         let (fx, fy) = (x - x0 as f32, y - y0 as f32);
         let i = y0 * self.w + x0;
-        let (a, b) = (buf[i], buf[i + 1]);
-        let (c, d) = (buf[i + self.w], buf[i + self.w + 1]);
+        let (a, b) = (self.px[i][c], self.px[i + 1][c]);
+        let (c, d) = (self.px[i + self.w][c], self.px[i + self.w + 1][c]);
         Some((a + fx * (b - a)) * (1.0 - fy) + (c + fx * (d - c)) * fy)
     }
 }
@@ -78,11 +73,10 @@ impl Level {
         let y0 = (y as usize).min(self.h.saturating_sub(2));
         let i = y0 * self.w + x0;
         let j = i + self.w;
-        // From `dg`: the lines `sample3` has just read for the same support.
-        clipped(self.dg[i][0])
-            || clipped(self.dg[i + 1][0])
-            || clipped(self.dg[j][0])
-            || clipped(self.dg[j + 1][0])
+        clipped(self.px[i][VALUE])
+            || clipped(self.px[i + 1][VALUE])
+            || clipped(self.px[j][VALUE])
+            || clipped(self.px[j + 1][VALUE])
     }
 
     /// Bilinear sample of intensity and both gradients at once (shared weights).
@@ -98,7 +92,7 @@ impl Level {
         let (wc, wd) = ((1.0 - fx) * fy, fx * fy);
         let i = y0 * self.w + x0;
         let j = i + self.w;
-        let (a, b, c, d) = (self.dg[i], self.dg[i + 1], self.dg[j], self.dg[j + 1]);
+        let (a, b, c, d) = (self.px[i], self.px[i + 1], self.px[j], self.px[j + 1]);
         let s = |m: usize| wa * a[m] + wb * b[m] + wc * c[m] + wd * d[m];
         Some([s(0), s(1), s(2)])
     }
@@ -122,7 +116,7 @@ impl Pyramid {
             let px = |x: isize, y: isize| -> f32 {
                 let xc = x.clamp(0, prev.w as isize - 1) as usize;
                 let yc = y.clamp(0, prev.h as isize - 1) as usize;
-                prev.data[yc * prev.w + xc]
+                prev.px[yc * prev.w + xc][VALUE]
             };
             for y in 0..nh {
                 for x in 0..nw {
@@ -315,7 +309,7 @@ fn track_one(
         let mut k = 0;
         for dy in -hw..=hw {
             for dx in -hw..=hw {
-                tmpl[k] = la.sample(&la.data, px + dx as f32, py + dy as f32)?;
+                tmpl[k] = la.sample(VALUE, px + dx as f32, py + dy as f32)?;
                 k += 1;
             }
         }
@@ -369,7 +363,7 @@ pub(crate) fn min_eigen(l: &Level, r: usize) -> Vec<f32> {
     for y in 0..h {
         let mut row = [0.0f64; 3];
         for x in 0..w {
-            let (gx, gy) = (f64::from(l.gx[y * w + x]), f64::from(l.gy[y * w + x]));
+            let [_, gx, gy] = l.px[y * w + x].map(f64::from);
             row[0] += gx * gx;
             row[1] += gx * gy;
             row[2] += gy * gy;
@@ -401,7 +395,7 @@ pub(crate) fn patch(a: &Pyramid, p: [f32; 2], hw: i32) -> Option<Vec<f32>> {
     let mut out = Vec::with_capacity(((2 * hw + 1) * (2 * hw + 1)) as usize);
     for dy in -hw..=hw {
         for dx in -hw..=hw {
-            out.push(l.sample(&l.data, p[0] + dx as f32, p[1] + dy as f32)?);
+            out.push(l.sample(VALUE, p[0] + dx as f32, p[1] + dy as f32)?);
         }
     }
     Some(out)

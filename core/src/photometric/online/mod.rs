@@ -245,6 +245,16 @@ pub struct OnlineResult {
     pub exposure_parts: Option<Vec<usize>>,
 }
 
+impl OnlineResult {
+    /// How many parts the exposures fall into (`exposure_parts`; 1 for a linked video).
+    pub fn exposure_part_count(&self) -> usize {
+        self.exposure_parts
+            .as_ref()
+            .and_then(|l| l.iter().max())
+            .map_or(1, |m| m + 1)
+    }
+}
+
 /// Calibrate response, vignetting and exposures from an auto-exposure video.
 pub fn photometric_online(
     frames: &[PhotoImage],

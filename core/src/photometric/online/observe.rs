@@ -8,7 +8,9 @@ use super::super::PhotoImage;
 use super::super::joint::{Censor, Obs};
 use super::super::vignette::VignetteModel;
 use super::OnlineParams;
-use super::klt::{KltConfig, Level, Pyramid, Track, min_eigen, patch, track_and_refine};
+use super::klt::{
+    GRAD_X, GRAD_Y, KltConfig, Level, Pyramid, Track, VALUE, min_eigen, patch, track_and_refine,
+};
 use super::response_match::ResponseMatch;
 use super::similarity::Similarity;
 use crate::error::{CoreError, CoreResult};
@@ -197,9 +199,9 @@ impl Sampler {
             let [ox, oy] = warp.apply(*off);
             let (x, y) = (c[0] + ox, c[1] + oy);
             let (Some(v), Some(gx), Some(gy)) = (
-                l0.sample(&l0.data, x, y),
-                l0.sample(&l0.gx, x, y),
-                l0.sample(&l0.gy, x, y),
+                l0.sample(VALUE, x, y),
+                l0.sample(GRAD_X, x, y),
+                l0.sample(GRAD_Y, x, y),
             ) else {
                 continue;
             };
@@ -209,7 +211,7 @@ impl Sampler {
             let (x0, y0) = (x.floor() as usize, y.floor() as usize);
             let i0 = y0 * w + x0;
             let [Some(a), Some(b), Some(c), Some(d)] =
-                [i0, i0 + 1, i0 + w, i0 + w + 1].map(|i| l0.data.get(i).copied())
+                [i0, i0 + 1, i0 + w, i0 + w + 1].map(|i| l0.value(i))
             else {
                 continue;
             };

@@ -21,7 +21,7 @@
 //! 12 against 11 on the fresh held-out `eval6`. The pass stays opt-in (`tracking_passes: 2`)
 //! because of its time.
 
-use super::klt::{Level, clipped, normal_add, window};
+use super::klt::{Level, VALUE, clipped, normal_add, window};
 use super::similarity::Similarity;
 use crate::error::CoreError;
 use crate::photometric::emor::EMOR_SAMPLES;
@@ -141,7 +141,7 @@ pub(crate) fn refine_with_response(
     // large, where the response saturates and Gauss-Newton from `k = 1` would stall.
     let (mut sum_t, mut sum_j) = (0.0f64, 0.0f64);
     for (i, x, y) in window(hw, warp, q) {
-        match lb.sample(&lb.data, x, y) {
+        match lb.sample(VALUE, x, y) {
             Some(j) if !clipped(tmpl[i]) && !clipped(j) => {
                 sum_t += f64::from(lin[i]);
                 sum_j += f64::from(rm.inverse(j));
@@ -207,13 +207,13 @@ mod tests {
         let (w, h) = (64usize, 64usize);
         let (shift, k) = ([1.0f32, -1.0f32], 2.5f32);
         // The frame: the pattern moved by `shift`, exposed `k` times longer.
-        let data = (0..w * h)
+        let data: Vec<f32> = (0..w * h)
             .map(|i| {
                 let (x, y) = ((i % w) as f32, (i / w) as f32);
                 f.forward(f64::from(k * radiance(x - shift[0], y - shift[1]))) as f32
             })
             .collect();
-        let level = Level::new(w, h, data);
+        let level = Level::new(w, h, data.clone());
         let (c, hw) = ([32.0f32, 30.0f32], 4i32);
         let tmpl: Vec<f32> = (-hw..=hw)
             .flat_map(|dy| (-hw..=hw).map(move |dx| (dx, dy)))
@@ -226,7 +226,7 @@ mod tests {
             refine_with_response(&tmpl, &level, start, hw, 20, Similarity::IDENTITY, &rm).unwrap();
         let err = (q[0] - c[0] - shift[0]).hypot(q[1] - c[1] - shift[1]);
         // The first pass's gain, bias and quadratic model on the same match.
-        let pyr = super::super::klt::Pyramid::new(w, h, level.data.clone(), 1);
+        let pyr = super::super::klt::Pyramid::new(w, h, data, 1);
         let (qa, _) =
             super::super::klt::refine_to_template(&tmpl, &pyr, start, hw, 20, Similarity::IDENTITY)
                 .unwrap();

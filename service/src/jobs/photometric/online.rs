@@ -112,7 +112,7 @@ impl Kind for PhotometricOnline {
             "converged": r.diagnostics.converged,
             "vignette_center_estimated": r.vignette_center.estimated,
             "vignette_model": r.vignette_choice.model,
-            "exposure_parts": r.exposure_parts.as_ref().map_or(1, |l| l.iter().max().map_or(1, |m| m + 1)),
+            "exposure_parts": r.exposure_part_count(),
         });
         let mut artifacts = response_artifacts(&r.model)?;
         // One DSO pcalib per channel (DSO reads one response; pick the channel it images).
