@@ -53,10 +53,12 @@
 //!   chosen on the tuning splits, to confirm it once.
 //! * `eval6`: seeds from 10 000, the same generators again: a sixth held-out set, fixed
 //!   2026-12-06 before the gauge hysteresis of the second pass was tried, to confirm it once.
+//! * `eval7`: seeds from 11 000, the same generators again: a seventh held-out set, fixed
+//!   2026-12-06 (session start, before any change) to confirm a cheaper second pass once.
 //!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \
-//!     [tuning|saturated|scripted|lens|scenes|eval|eval2|…|eval6|shared] [cases] [frames] [width] [height]
+//!     [tuning|saturated|scripted|lens|scenes|eval|eval2|…|eval7|shared] [cases] [frames] [width] [height]
 //! ```
 //!
 //! The second tracking pass (2026-12-05, evening; `online/response_match.rs`). `eval4`'s two
@@ -244,7 +246,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
     // `eval2` … `eval5`: `eval`'s generators with fresh seeds (see the module notes).
     let eval = matches!(
         set,
-        "eval" | "eval2" | "eval3" | "eval4" | "eval5" | "eval6"
+        "eval" | "eval2" | "eval3" | "eval4" | "eval5" | "eval6" | "eval7"
     );
     let saturated = set == "saturated";
     let scripted = set == "scripted";
@@ -261,6 +263,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         "eval4" => (8000 + i as u64, 101),
         "eval5" => (9000 + i as u64, 103),
         "eval6" => (10_000 + i as u64, 107),
+        "eval7" => (11_000 + i as u64, 109),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));
