@@ -446,15 +446,15 @@ fn cpu_seconds() -> f64 {
         .unwrap_or(f64::NAN)
 }
 
-/// Records the CPU time at which each named stage starts.
-struct Stages(std::sync::Mutex<Vec<(String, f64)>>);
+/// Records the CPU and wall time at which each named stage starts.
+struct Stages(std::sync::Mutex<Vec<(String, f64, Instant)>>);
 
 impl caliper_core::Progress for Stages {
     fn report(&self, step: &str, _: u64, _: u64) {
         if let Ok(mut s) = self.0.lock()
             && s.last().is_none_or(|l| l.0 != step)
         {
-            s.push((step.to_string(), cpu_seconds()));
+            s.push((step.to_string(), cpu_seconds(), Instant::now()));
         }
     }
     fn is_canceled(&self) -> bool {
@@ -541,9 +541,9 @@ fn score(
             {
                 let st: Vec<String> = s
                     .iter()
-                    .map(|(n, t)| format!("{n}@{:.2}", t - c0))
+                    .map(|(n, t, i)| format!("{n}@{:.2}/{:.2}", t - c0, (*i - t0).as_secs_f64()))
                     .collect();
-                println!("    stages (cpu s): {}", st.join(" "));
+                println!("    stages (cpu s / wall s): {}", st.join(" "));
             }
             Row {
                 name,

@@ -199,6 +199,27 @@ impl InverseResponse {
     }
 }
 
+/// The basis cell of irradiance `e` and the position in it, continued past 1 (see
+/// [`emor_eval`]).
+#[inline]
+fn emor_cell(e: f64) -> (usize, f64) {
+    let (j, t) = EmorBasis::cell(e);
+    let t = if e > 1.0 {
+        (e * (EMOR_SAMPLES - 1) as f64 - j as f64).max(t)
+    } else {
+        t
+    };
+    (j, t)
+}
+
+/// `f(E)` alone, as [`emor_eval`] gives it: the robust cost needs no derivatives, and it is
+/// evaluated once per sample for every damping step tried.
+#[inline]
+pub(crate) fn emor_value(curve: &[f64], e: f64) -> f64 {
+    let (j, t) = emor_cell(e);
+    curve[j] + t * (curve[j + 1] - curve[j])
+}
+
 /// Raw EMoR evaluation for the fitters: `f(E)`, `f'(E)` and `∂f/∂c_k = h_k(E)`. Irradiance
 /// above 1 continues the last segment linearly so that over-estimated radiances still get a
 /// gradient back into range.
@@ -211,12 +232,7 @@ pub(crate) struct EmorEval {
 pub(crate) fn emor_eval(curve: &[f64], e: f64) -> EmorEval {
     let b = emor_basis();
     let n = (EMOR_SAMPLES - 1) as f64;
-    let (j, t) = EmorBasis::cell(e);
-    let t = if e > 1.0 {
-        (e * n - j as f64).max(t)
-    } else {
-        t
-    };
+    let (j, t) = emor_cell(e);
     let df = (curve[j + 1] - curve[j]) * n;
     let mut dc = [0.0; EMOR_DIM];
     for (k, d) in dc.iter_mut().enumerate() {

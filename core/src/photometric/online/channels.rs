@@ -41,7 +41,7 @@ use super::center::r2_at;
 use super::gauge::{GaugeContext, OtherChannel};
 use super::klt::Level;
 use super::response_match::{ResponseMatch, recoverable};
-use super::{GRAD_HALF_WEIGHT, Observations, OnlineParams, OnlineResult, fit, observe};
+use super::{GRAD_HALF_WEIGHT, Observations, OnlineParams, OnlineResult, first_look, fit, observe};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
 
@@ -122,17 +122,8 @@ pub fn photometric_online_rgb(
     let mut seen = observe(&luma, params, w, h, None, progress)?;
     let mut passes = 1;
     for pass in 2..=params.tracking_passes {
-        let again = fit(
-            frames.len(),
-            w,
-            h,
-            seen.clone(),
-            params,
-            GaugeContext::default(),
-            progress,
-        )
-        .and_then(|r| {
-            let rm = ResponseMatch::new(&r.model.response);
+        let again = first_look(frames.len(), &seen, params, progress).and_then(|response| {
+            let rm = ResponseMatch::new(&response);
             observe(&luma, params, w, h, Some(&rm), progress)
         });
         match again {

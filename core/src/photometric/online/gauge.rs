@@ -103,6 +103,7 @@ use super::super::joint::{JointConfig, JointState, Obs, refine, regauge};
 use super::channels::fit_with_shared;
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
+use rayon::prelude::*;
 
 /// Gauge values `f(0.5)` profiled; EMoR responses of real cameras (DoRF) lie well inside.
 /// 0.92 lets the parabola refine a best value of 0.85 (tuning cases with f(0.5) = 0.81 and
@@ -222,17 +223,18 @@ pub(super) fn choose_gauge(
         }
         Ok((cost, st))
     };
-    let mut costs = Vec::with_capacity(GRID.len());
-    let mut states = Vec::with_capacity(GRID.len());
     // Every value from the start moved into its own gauge sheet: warm starts carried one
     // value's unconverged shape into the next and made the profile ragged (issue-16 eval
     // cases with costs jumping 2× between neighbours).
     // `start` has the mean response (c = 0), so `run`'s regauge is the move into m's sheet.
-    for &m in &GRID {
-        let (c, s) = run(start, m)?;
-        costs.push(c);
-        states.push(s);
-    }
+    // The values are independent, so they are fitted in parallel: one fit on the profile's
+    // subsample keeps two cores only half busy.
+    let (costs, states): (Vec<f64>, Vec<JointState>) = GRID
+        .par_iter()
+        .map(|&m| run(start, m))
+        .collect::<CoreResult<Vec<_>>>()?
+        .into_iter()
+        .unzip();
     // Polish each of the profile's best local minima, keep the cheapest (see
     // [`PROFILE_CANDIDATES`]).
     let candidates = local_minima(&costs, PROFILE_CANDIDATES);
@@ -286,7 +288,7 @@ type Profiled = (f64, JointState);
 /// choice, so their costs compare cleanly where the grid's did not (module notes). Returns
 /// the final cost with the choice.
 fn polish(
-    run: &dyn Fn(&JointState, f64) -> CoreResult<Profiled>,
+    run: &(dyn Fn(&JointState, f64) -> CoreResult<Profiled> + Sync),
     costs: &[f64],
     best: usize,
     state: JointState,
@@ -319,10 +321,10 @@ fn polish(
         let Some(xs) = local_bracket(m) else {
             break;
         };
-        let mut fits = Vec::with_capacity(3);
-        for &x in &xs {
-            fits.push(run(&choice.state, x)?);
-        }
+        let mut fits = xs
+            .par_iter()
+            .map(|&x| run(&choice.state, x))
+            .collect::<CoreResult<Vec<_>>>()?;
         let ys = [fits[0].0, fits[1].0, fits[2].0];
         let lo = (0..3).min_by(|&a, &b| ys[a].total_cmp(&ys[b])).unwrap_or(1);
         let vertex = match parabola_vertex(xs, ys) {

@@ -269,47 +269,73 @@ pub fn photometric_online(
         ));
     }
     let (w, h) = check_stack(frames, 3)?;
+    let nf = frames.len();
     let seen = observe(frames, params, w, h, None, progress)?;
-    let mut result = fit(
-        frames.len(),
-        w,
-        h,
-        seen,
+    if params.tracking_passes == 1 {
+        return fit(nf, w, h, seen, params, GaugeContext::default(), progress);
+    }
+    let first = first_look(nf, &seen, params, progress)?;
+    let rm = ResponseMatch::new(&first);
+    let again = observe(frames, params, w, h, Some(&rm), progress).and_then(|next| {
+        let ctx = GaugeContext {
+            prefer: Some(first.forward(0.5)),
+            ..GaugeContext::default()
+        };
+        fit(nf, w, h, next, params, ctx, progress)
+    });
+    match again {
+        Ok(result) => Ok(OnlineResult {
+            tracking_passes: 2,
+            ..result
+        }),
+        // Too few tracks in the second pass: the full fit of the first (said in
+        // `tracking_passes`).
+        Err(e) if response_match::recoverable(&e) => {
+            fit(nf, w, h, seen, params, GaugeContext::default(), progress)
+        }
+        Err(e) => Err(e),
+    }
+}
+
+/// The first of two passes, cut to what the second takes from it: the response its matches
+/// are re-aligned through and the gauge it keeps as a candidate. With the gauge profiled
+/// (the default) that is the profile's fit on its subsample of the points; the first pass's
+/// full refinement, centre and vignetting model would be thrown away (they took about 1.4 s
+/// of 10.6 s on the sweep's `lens#7`).
+pub(crate) fn first_look(
+    nf: usize,
+    seen: &Observations,
+    params: &OnlineParams,
+    progress: &dyn Progress,
+) -> CoreResult<ResponseModel> {
+    let (obs, n_points) = (&seen.obs, seen.n_points as usize);
+    if params.broken_tracks == BrokenTracks::Refuse {
+        linked::require_linked(obs, nf)?;
+    }
+    let huber = params.huber_levels / 255.0;
+    let mut state = start(nf, obs, n_points, huber, progress)?;
+    let gauge = place_in_gauge(
+        obs,
+        n_points,
+        &mut state,
         params,
         GaugeContext::default(),
         progress,
     )?;
-    result.tracking_passes = 1;
-    for pass in 2..=params.tracking_passes {
-        let rm = ResponseMatch::new(&result.model.response);
-        let prefer = result.model.response.forward(0.5);
-        let again = observe(frames, params, w, h, Some(&rm), progress).and_then(|seen| {
-            fit(
-                frames.len(),
-                w,
-                h,
-                seen,
-                params,
-                GaugeContext {
-                    prefer: Some(prefer),
-                    ..GaugeContext::default()
-                },
-                progress,
-            )
-        });
-        match again {
-            Ok(next) => {
-                result = OnlineResult {
-                    tracking_passes: pass,
-                    ..next
-                };
-            }
-            // Too few tracks in this pass: keep the last fit (said in `tracking_passes`).
-            Err(e) if response_match::recoverable(&e) => break,
-            Err(e) => return Err(e),
-        }
+    if params.gamma_gauge.is_some() {
+        // No profile ran: fit the response at the given gauge.
+        let joint = JointConfig {
+            fit_response: true,
+            fit_vignette: params.fit_vignette,
+            fit_exposures: true,
+            gamma_gauge: Some(gauge),
+            huber,
+            max_iterations: params.max_iterations,
+            label: "refine",
+        };
+        refine(obs, &joint, &mut state, progress)?;
     }
-    Ok(result)
+    Ok(ResponseModel::Emor { c: state.c })
 }
 
 /// Exposures, then the joint refinement, from the observations. `others`: further colour
@@ -337,91 +363,17 @@ pub(crate) fn fit(
         }
         BrokenTracks::PerPart => linked::part_labels(&obs, nf),
     };
-    // Frame-to-frame exposure ratios under the mean response.
-    let g0 = ResponseModel::default().inverse(4096);
-    let lg = |o: &Obs| g0.eval(f64::from(o.value)).max(1e-6).ln();
-    let mut ratios: Vec<Vec<f64>> = vec![Vec::new(); nf];
-    for pair in obs.windows(2) {
-        let (a, b) = (&pair[0], &pair[1]);
-        if a.point == b.point && b.frame == a.frame + 1 && a.measured() && b.measured() {
-            ratios[b.frame as usize].push(lg(b) - lg(a));
-        }
-    }
-    let mut log_e = vec![0.0; nf];
-    for k in 1..nf {
-        let r = &mut ratios[k];
-        let step = if r.is_empty() {
-            0.0
-        } else {
-            r.sort_by(f64::total_cmp);
-            r[r.len() / 2]
-        };
-        log_e[k] = log_e[k - 1] + step;
-    }
-    let mut log_l = vec![0.0; n_points as usize];
-    let mut acc = vec![(0.0, 0.0); n_points as usize];
-    for o in obs.iter().filter(|o| o.measured()) {
-        let a = &mut acc[o.point as usize];
-        a.0 += lg(o) - log_e[o.frame as usize];
-        a.1 += 1.0;
-    }
-    for (l, a) in log_l.iter_mut().zip(&acc) {
-        *l = a.0 / a.1;
-    }
-    let mut state = JointState {
-        c: [0.0; EMOR_DIM],
-        v: [0.0; 3],
-        spline: None,
-        log_e,
-        log_l,
-    };
     let huber = params.huber_levels / 255.0;
-    progress.check()?;
-    refine(
+    let mut state = start(nf, &obs, n_points as usize, huber, progress)?;
+    let mut initial: Vec<f64> = state.log_e.iter().map(|l| l.exp()).collect();
+    let gamma_gauge = place_in_gauge(
         &obs,
-        &JointConfig {
-            fit_response: false,
-            fit_vignette: false,
-            fit_exposures: true,
-            gamma_gauge: None,
-            huber,
-            max_iterations: 5,
-            label: "exposures",
-        },
+        n_points as usize,
         &mut state,
+        params,
+        gauge_ctx,
         progress,
     )?;
-    let mut initial: Vec<f64> = state.log_e.iter().map(|l| l.exp()).collect();
-    let gamma_gauge = match params.gamma_gauge {
-        Some(m) => {
-            gauge_start(&mut state, m);
-            m
-        }
-        None => {
-            let choice = gauge::choose_gauge(
-                &obs,
-                n_points as usize,
-                &state,
-                huber,
-                params.fit_vignette,
-                gauge_ctx,
-                progress,
-            )?;
-            // Radiances of the points left out of the profile: the start's, moved to the
-            // chosen gauge.
-            gauge_start(&mut state, choice.gauge);
-            let every = (n_points as usize).div_ceil(gauge::PROFILE_POINTS).max(1);
-            for (i, l) in state.log_l.iter_mut().enumerate() {
-                if i % every == 0 {
-                    *l = choice.state.log_l[i];
-                }
-            }
-            state.c = choice.state.c;
-            state.v = choice.state.v;
-            state.log_e = choice.state.log_e;
-            choice.gauge
-        }
-    };
     let joint = JointConfig {
         fit_response: true,
         fit_vignette: params.fit_vignette,
@@ -493,4 +445,107 @@ pub(crate) fn fit(
         tracking_passes: 1,
         exposure_parts: parts,
     })
+}
+
+/// Move the start into the gauge: the given `gamma_gauge`, or the profile's choice
+/// ([`gauge::choose_gauge`]) with the profile's fit taken over. Returns `f(0.5)`.
+fn place_in_gauge(
+    obs: &[Obs],
+    n_points: usize,
+    state: &mut JointState,
+    params: &OnlineParams,
+    gauge_ctx: GaugeContext<'_>,
+    progress: &dyn Progress,
+) -> CoreResult<f64> {
+    let Some(m) = params.gamma_gauge else {
+        let choice = gauge::choose_gauge(
+            obs,
+            n_points,
+            state,
+            params.huber_levels / 255.0,
+            params.fit_vignette,
+            gauge_ctx,
+            progress,
+        )?;
+        // Radiances of the points left out of the profile: the start's, moved to the
+        // chosen gauge.
+        gauge_start(state, choice.gauge);
+        let every = n_points.div_ceil(gauge::PROFILE_POINTS).max(1);
+        for (i, l) in state.log_l.iter_mut().enumerate() {
+            if i % every == 0 {
+                *l = choice.state.log_l[i];
+            }
+        }
+        state.c = choice.state.c;
+        state.v = choice.state.v;
+        state.log_e = choice.state.log_e;
+        return Ok(choice.gauge);
+    };
+    gauge_start(state, m);
+    Ok(m)
+}
+
+/// The start of the joint fit: frame-to-frame exposure ratios under the mean response (a
+/// linear problem), then a few Gauss-Newton steps on exposures and radiances only.
+fn start(
+    nf: usize,
+    obs: &[Obs],
+    n_points: usize,
+    huber: f64,
+    progress: &dyn Progress,
+) -> CoreResult<JointState> {
+    // Frame-to-frame exposure ratios under the mean response.
+    let g0 = ResponseModel::default().inverse(4096);
+    let lg = |o: &Obs| g0.eval(f64::from(o.value)).max(1e-6).ln();
+    let mut ratios: Vec<Vec<f64>> = vec![Vec::new(); nf];
+    for pair in obs.windows(2) {
+        let (a, b) = (&pair[0], &pair[1]);
+        if a.point == b.point && b.frame == a.frame + 1 && a.measured() && b.measured() {
+            ratios[b.frame as usize].push(lg(b) - lg(a));
+        }
+    }
+    let mut log_e = vec![0.0; nf];
+    for k in 1..nf {
+        let r = &mut ratios[k];
+        let step = if r.is_empty() {
+            0.0
+        } else {
+            r.sort_by(f64::total_cmp);
+            r[r.len() / 2]
+        };
+        log_e[k] = log_e[k - 1] + step;
+    }
+    let mut log_l = vec![0.0; n_points];
+    let mut acc = vec![(0.0, 0.0); n_points];
+    for o in obs.iter().filter(|o| o.measured()) {
+        let a = &mut acc[o.point as usize];
+        a.0 += lg(o) - log_e[o.frame as usize];
+        a.1 += 1.0;
+    }
+    for (l, a) in log_l.iter_mut().zip(&acc) {
+        *l = a.0 / a.1;
+    }
+    let mut state = JointState {
+        c: [0.0; EMOR_DIM],
+        v: [0.0; 3],
+        spline: None,
+        log_e,
+        log_l,
+    };
+    progress.check()?;
+    refine(
+        obs,
+        &JointConfig {
+            fit_response: false,
+            fit_vignette: false,
+            fit_exposures: true,
+            gamma_gauge: None,
+            huber,
+            max_iterations: 5,
+            label: "exposures",
+        },
+        &mut state,
+        progress,
+    )?;
+    Ok(state)
 }
