@@ -55,10 +55,12 @@
 //!   2026-12-06 before the gauge hysteresis of the second pass was tried, to confirm it once.
 //! * `eval7`: seeds from 11 000, the same generators again: a seventh held-out set, fixed
 //!   2026-12-06 (session start, before any change) to confirm a cheaper second pass once.
+//! * `eval8`: seeds from 12 000, the same generators again, fixed 2026-12-06 after `eval7`
+//!   had been looked at (its `eval7#4` led to refusing tracks that break in the second pass).
 //!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \
-//!     [tuning|saturated|scripted|lens|scenes|eval|eval2|…|eval7|shared] [cases] [frames] [width] [height]
+//!     [tuning|saturated|scripted|lens|scenes|eval|eval2|…|eval8|shared] [cases] [frames] [width] [height]
 //! ```
 //!
 //! The second tracking pass (2026-12-05, evening; `online/response_match.rs`). `eval4`'s two
@@ -246,7 +248,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
     // `eval2` … `eval5`: `eval`'s generators with fresh seeds (see the module notes).
     let eval = matches!(
         set,
-        "eval" | "eval2" | "eval3" | "eval4" | "eval5" | "eval6" | "eval7"
+        "eval" | "eval2" | "eval3" | "eval4" | "eval5" | "eval6" | "eval7" | "eval8"
     );
     let saturated = set == "saturated";
     let scripted = set == "scripted";
@@ -264,6 +266,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         "eval5" => (9000 + i as u64, 103),
         "eval6" => (10_000 + i as u64, 107),
         "eval7" => (11_000 + i as u64, 109),
+        "eval8" => (12_000 + i as u64, 113),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));
@@ -533,8 +536,8 @@ fn score(
                 println!("    fitted in {n} parts (broken tracks), exposures scored per part");
             }
             println!(
-                "    vignette: {} ({})",
-                r.vignette_choice.model, r.vignette_choice.reason
+                "    vignette: {} ({}); tracking passes fitted: {}",
+                r.vignette_choice.model, r.vignette_choice.reason, r.tracking_passes
             );
             if std::env::var_os("SWEEP_STAGES").is_some()
                 && let Ok(s) = stages.0.lock()

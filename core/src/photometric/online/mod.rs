@@ -23,9 +23,10 @@
 //!    `gamma_gauge` (then results of one camera share the gauge).
 //! 4. Optionally (`vignette_center: auto | estimated`; the default keeps DSO's image centre)
 //!    the vignetting centre ([`center`]), followed by a final joint refinement around it.
-//! 5. Optionally (`tracking_passes: 2`) the video is tracked again with every match re-aligned
-//!    through the fitted response ([`response_match`]) and the fit runs again on the new
-//!    samples (the module `observe` tracks and samples).
+//! 5. By default (`tracking_passes: 2`) steps 1–3 are a first look that stops at the gauge
+//!    profile ([`first_look`]); the video is then tracked again with every match re-aligned
+//!    through that response ([`response_match`]) and steps 2–4 run on the new samples (the
+//!    module `observe` tracks and samples).
 //!
 //! Colour input with `channels: rgb` tracks on luma and fits one response per channel with
 //! exposures and vignetting shared ([`channels`]).
@@ -110,14 +111,13 @@ pub struct OnlineParams {
     /// wide-angle and mechanically vignetted lenses) or `auto` (both; the spline when it fits
     /// clearly better, see `vignette_choice` in the result).
     pub vignette_model: VignetteKind,
-    /// Tracking passes: 1 (default); 2 tracks the video again with every match re-aligned to
-    /// its birth patch through the first fit's response (`J = f(k·f⁻¹(T))`, Kim & Pollefeys
-    /// 2008) and fits again (keeping the first fit's gauge `f(0.5)` when it explains the new
-    /// samples at least as well), for about twice the time. More accurate (the sweep's tuning
+    /// Tracking passes: 2 (default) tracks the video again after a first fit, with every
+    /// match re-aligned to its birth patch through that fit's response (`J = f(k·f⁻¹(T))`,
+    /// Kim & Pollefeys 2008), and fits on the new samples (keeping the first fit's gauge
+    /// `f(0.5)` when it explains them at least as well); 1 stops after the first fit, in
+    /// about 60 % of the time. Two are more accurate on every sweep run (the sweep's tuning
     /// sets 57 against 54 of 60 sequences within the accuracy targets, held-out `eval5` 10
-    /// against 9 and `eval6` 12 against 11 of 12), but opt-in while it doubles the time: 200
-    /// frames at 320×240 take 8.5 s median and up to 10.6 s on 2 cores against 4.3 s and
-    /// 5.2 s.
+    /// against 9 and `eval6` 12 against 11 of 12).
     pub tracking_passes: usize,
     /// When the tracks break the video into parts that share no scene point (a cut, a jump,
     /// a stretch clipped white): `refuse` (default) fails with `invalid_input` naming the
@@ -157,7 +157,7 @@ impl Default for OnlineParams {
             channels: Channels::Luma,
             vignette_center: CenterMode::Fixed,
             vignette_model: VignetteKind::Auto,
-            tracking_passes: 1,
+            tracking_passes: 2,
             broken_tracks: BrokenTracks::Refuse,
         }
     }
@@ -234,8 +234,8 @@ pub struct OnlineResult {
     /// exposures and vignetting; `model.response` is then the green one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub channel_responses: Option<Vec<ChannelResponse>>,
-    /// Tracking passes run (`tracking_passes`, fewer when a later pass found too few tracks on
-    /// the linearised frames and the previous fit was kept).
+    /// Tracking passes whose samples were fitted (`tracking_passes`; 1 with two asked for
+    /// when the second pass found too few tracks, and the first pass's samples were fitted).
     #[serde(default)]
     pub tracking_passes: usize,
     /// With `broken_tracks: per_part` and a video whose tracks broke: the part of each frame
@@ -276,20 +276,31 @@ pub fn photometric_online(
     }
     let first = first_look(nf, &seen, params, progress)?;
     let rm = ResponseMatch::new(&first);
-    let again = observe(frames, params, w, h, Some(&rm), progress).and_then(|next| {
-        let ctx = GaugeContext {
-            prefer: Some(first.forward(0.5)),
-            ..GaugeContext::default()
-        };
-        fit(nf, w, h, next, params, ctx, progress)
-    });
-    match again {
+    let next = match observe(frames, params, w, h, Some(&rm), progress) {
+        Ok(next) => next,
+        // Too few tracks in the second pass: the full fit of the first (said in
+        // `tracking_passes`).
+        Err(e) if response_match::recoverable(&e) => {
+            return fit(nf, w, h, seen, params, GaugeContext::default(), progress);
+        }
+        Err(e) => return Err(e),
+    };
+    // Tracks that break in the second pass are refused like the first pass's: the first
+    // pass's link across the break then rests on a few tracks the second could not follow
+    // (the sweep's `eval7#4`: tied by the first pass, exposures 8.4 % off; per part, both
+    // parts within 1.2 %), so falling back to it would return exposures without a scale.
+    if params.broken_tracks == BrokenTracks::Refuse {
+        linked::require_linked(&next.obs, nf)?;
+    }
+    let ctx = GaugeContext {
+        prefer: Some(first.forward(0.5)),
+        ..GaugeContext::default()
+    };
+    match fit(nf, w, h, next, params, ctx, progress) {
         Ok(result) => Ok(OnlineResult {
             tracking_passes: 2,
             ..result
         }),
-        // Too few tracks in the second pass: the full fit of the first (said in
-        // `tracking_passes`).
         Err(e) if response_match::recoverable(&e) => {
             fit(nf, w, h, seen, params, GaugeContext::default(), progress)
         }
