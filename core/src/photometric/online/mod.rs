@@ -115,9 +115,10 @@ pub struct OnlineParams {
     /// match re-aligned to its birth patch through that fit's response (`J = f(k·f⁻¹(T))`,
     /// Kim & Pollefeys 2008), and fits on the new samples (keeping the first fit's gauge
     /// `f(0.5)` when it explains them at least as well); 1 stops after the first fit, in
-    /// about 60 % of the time. Two are more accurate on every sweep run (the sweep's tuning
-    /// sets 57 against 54 of 60 sequences within the accuracy targets, held-out `eval5` 10
-    /// against 9 and `eval6` 12 against 11 of 12).
+    /// about 55 % of the time. Two are at least as accurate on every sweep run (sequences
+    /// within the accuracy targets: the sweep's tuning sets 58 against 54 of 60, held-out
+    /// `eval5` 10 against 9, `eval6` 12 against 11, `eval7` and `eval8` 11 and 11 of 12 with
+    /// lower median errors); see `examples/photometric_sweep.rs`.
     pub tracking_passes: usize,
     /// When the tracks break the video into parts that share no scene point (a cut, a jump,
     /// a stretch clipped white): `refuse` (default) fails with `invalid_input` naming the
