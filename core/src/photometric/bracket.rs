@@ -10,7 +10,6 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::emor::EMOR_DIM;
 use super::joint::{Censor, JointConfig, JointState, Obs, refine};
 use super::response::ResponseModel;
 use super::{FitDiagnostics, PHOTOMETRIC_SCHEMA, PhotoImage, PhotometricModel, check_stack};
@@ -158,13 +157,7 @@ pub fn photometric_response(
         )));
     }
     progress.check()?;
-    let mut state = JointState {
-        c: [0.0; EMOR_DIM],
-        v: [0.0; 3],
-        spline: None,
-        log_e,
-        log_l,
-    };
+    let mut state = JointState::at_mean_response(log_e, log_l);
     let cfg = JointConfig {
         fit_response: true,
         fit_vignette: false,

@@ -143,6 +143,18 @@ pub(crate) struct JointState {
 }
 
 impl JointState {
+    /// The mean EMoR response and no vignetting with the given exposures and radiances: where
+    /// every fit starts.
+    pub(crate) fn at_mean_response(log_e: Vec<f64>, log_l: Vec<f64>) -> Self {
+        Self {
+            c: [0.0; EMOR_DIM],
+            v: [0.0; 3],
+            spline: None,
+            log_e,
+            log_l,
+        }
+    }
+
     /// `V` at squared normalised radius `r2`: the spline when there is one, else the polynomial.
     #[inline]
     pub(crate) fn vig(&self, r2: f64) -> f64 {

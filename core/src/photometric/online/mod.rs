@@ -52,7 +52,6 @@ pub use channels::{ChannelResponse, Channels, photometric_online_rgb};
 
 use serde::{Deserialize, Serialize};
 
-use super::emor::EMOR_DIM;
 use super::flat::VignetteKind;
 use super::joint::{JointConfig, JointState, Obs, gauge_start, refine};
 use super::response::ResponseModel;
@@ -537,13 +536,7 @@ fn start(
     for (l, a) in log_l.iter_mut().zip(&acc) {
         *l = a.0 / a.1;
     }
-    let mut state = JointState {
-        c: [0.0; EMOR_DIM],
-        v: [0.0; 3],
-        spline: None,
-        log_e,
-        log_l,
-    };
+    let mut state = JointState::at_mean_response(log_e, log_l);
     progress.check()?;
     refine(
         obs,
