@@ -65,6 +65,45 @@ fn online_calibration_recovers_model() {
     assert!((r.exposure_ratios[0] - 1.0).abs() < 1e-12);
 }
 
+/// The first of two passes stops at its gauge profile ([`online::first_look`]); the response
+/// it hands to the second pass must be the one the full fit of the same samples arrives at,
+/// in the same gauge, or the second pass would re-align its matches through a wrong curve.
+#[test]
+fn first_look_hands_on_the_full_fits_response() {
+    let cam = SynthCamera::reference(160, 120, 11);
+    let seq = render_ae_sequence(&cam, 80);
+    let p = OnlineParams {
+        max_features: 150,
+        tracking_passes: 1,
+        ..OnlineParams::default()
+    };
+    let seen = online::observe(&seq.frames, &p, 160, 120, None, &NoProgress).unwrap();
+    let look = online::first_look(seq.frames.len(), &seen, &p, &NoProgress).unwrap();
+    let full = photometric_online(&seq.frames, &p, &NoProgress).unwrap();
+    let gap = (0..=100)
+        .map(|i| f64::from(i) / 100.0)
+        .map(|x| (look.forward(x) - full.model.response.forward(x)).abs())
+        .fold(0.0, f64::max);
+    eprintln!(
+        "first look f(0.5) {:.4}, full fit {:.4}, largest gap {gap:.4}",
+        look.forward(0.5),
+        full.model.response.forward(0.5)
+    );
+    assert!(gap < 0.02, "first look departs from the full fit by {gap}");
+    assert!((look.forward(0.5) - full.model.response.forward(0.5)).abs() < 5e-3);
+    // And it is the camera's curve, not the mean-response start it began from.
+    let (_, err) = gamma_align(&look.inverse(256), &cam.response.inverse(256));
+    let (_, start) = gamma_align(
+        &ResponseModel::default().inverse(256),
+        &cam.response.inverse(256),
+    );
+    eprintln!("first look response RMSE {err:.4} (mean-response start {start:.4})");
+    assert!(
+        err < 0.02 && err < 0.5 * start,
+        "first look {err}, start {start}"
+    );
+}
+
 /// The joint refinement alone, on ideal correspondences (true geometry, bilinear samples of
 /// the rendered frames): recovers the model from the mean-response start.
 #[test]
