@@ -497,7 +497,7 @@ pub(crate) fn refine(
         let e = state.log_e[o.frame as usize].exp()
             * state.vig(f64::from(o.r2))
             * state.log_l[o.point as usize].exp();
-        let r = f64::from(o.value) - emor_eval(&curve, e).f;
+        let r = f64::from(o.value) - emor_value(&curve, e);
         if o.measured() && r.abs() <= 3.0 * cfg.huber && o.weight > 0.0 {
             ss += r * r;
             n += 1;

@@ -34,7 +34,7 @@ use serde::{Deserialize, Serialize};
 
 use super::super::emor::emor_basis;
 use super::super::joint::{JointState, Obs};
-use super::super::response::emor_eval;
+use super::super::response::{emor_eval, emor_value};
 use crate::error::CoreResult;
 use crate::progress::Progress;
 
@@ -149,7 +149,7 @@ pub(super) fn fit_center(
     let residual = |s: &St, o: &Obs, p: [f32; 2]| {
         let r2 = f64::from(r2_at(p, s.c, rad));
         let e = s.log_e[o.frame as usize].exp() * vig(&s.v, r2) * s.log_l[o.point as usize].exp();
-        o.residual(emor_eval(&curve, e).f)
+        o.residual(emor_value(&curve, e))
     };
     let rho = |r: f64| {
         let a = r.abs();

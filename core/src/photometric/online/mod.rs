@@ -335,16 +335,7 @@ pub(crate) fn first_look(
     )?;
     if params.gamma_gauge.is_some() {
         // No profile ran: fit the response at the given gauge.
-        let joint = JointConfig {
-            fit_response: true,
-            fit_vignette: params.fit_vignette,
-            fit_exposures: true,
-            gamma_gauge: Some(gauge),
-            huber,
-            max_iterations: params.max_iterations,
-            label: "refine",
-        };
-        refine(obs, &joint, &mut state, progress)?;
+        refine(obs, &joint_config(params, gauge), &mut state, progress)?;
     }
     Ok(ResponseModel::Emor { c: state.c })
 }
@@ -385,15 +376,7 @@ pub(crate) fn fit(
         gauge_ctx,
         progress,
     )?;
-    let joint = JointConfig {
-        fit_response: true,
-        fit_vignette: params.fit_vignette,
-        fit_exposures: true,
-        gamma_gauge: Some(gamma_gauge),
-        huber,
-        max_iterations: params.max_iterations,
-        label: "refine",
-    };
+    let joint = joint_config(params, gamma_gauge);
     let mut rep = refine(&obs, &joint, &mut state, progress)?;
     let center = center::resolve(
         params.vignette_center,
@@ -456,6 +439,19 @@ pub(crate) fn fit(
         tracking_passes: 1,
         exposure_parts: parts,
     })
+}
+
+/// The joint refinement of response, vignetting, exposures and radiances at gauge `f(0.5)`.
+fn joint_config(params: &OnlineParams, gauge: f64) -> JointConfig {
+    JointConfig {
+        fit_response: true,
+        fit_vignette: params.fit_vignette,
+        fit_exposures: true,
+        gamma_gauge: Some(gauge),
+        huber: params.huber_levels / 255.0,
+        max_iterations: params.max_iterations,
+        label: "refine",
+    }
 }
 
 /// Move the start into the gauge: the given `gamma_gauge`, or the profile's choice
