@@ -1,7 +1,8 @@
 //! Blur scores vs the OpenCV/numpy peer (`shared/peers/blur_scores.py`): timings and agreement.
 //!
 //! `cargo bench -p caliper-core --bench blur_vs_peer`
-//! Env: `CALIPER_BLUR_DIR` (default `<workspace>/../shared/data/blur/synthetic_640x480`),
+//! Env: `CALIPER_PYTHON` (the peer's interpreter, default `python3`),
+//! `CALIPER_BLUR_DIR` (default `<workspace>/../shared/data/blur/synthetic_640x480`),
 //! `CALIPER_BENCH_RUNS` (default 11), `RAYON_NUM_THREADS` (batch scoring), `CALIPER_BENCH_K` (10).
 
 use std::path::{Path, PathBuf};
@@ -41,15 +42,15 @@ fn run_peer(dir: &Path, runs: usize, k: usize) -> Result<(serde_json::Value, Str
         return Err(format!("peer script {} not found", script.display()));
     }
     let pattern = format!("{}/*.png", dir.display());
-    let out = Command::new("python3")
+    let out = Command::new(common::python())
         .arg(&script)
         .args(["--images", &pattern, "--runs", &runs.to_string()])
         .args(["--k", &k.to_string()])
         .output()
-        .map_err(|e| format!("cannot run python3: {e}"))?;
+        .map_err(|e| format!("cannot run {:?}: {e}", common::python()))?;
     if !out.status.success() {
         return Err(format!(
-            "peer failed (python3 or cv2/numpy unavailable?): {}",
+            "peer failed (no cv2/numpy in CALIPER_PYTHON or python3?): {}",
             String::from_utf8_lossy(&out.stderr).trim()
         ));
     }

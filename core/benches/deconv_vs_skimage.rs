@@ -3,7 +3,8 @@
 //! 1920×1080 timings.
 //!
 //! `cargo bench -p caliper-core --bench deconv_vs_skimage`
-//! Env: `CALIPER_DECONV_DATA` (default `<workspace>/../shared/data/blur/skimage`),
+//! Env: `CALIPER_PYTHON` (the peer's interpreter, default `python3`),
+//! `CALIPER_DECONV_DATA` (default `<workspace>/../shared/data/blur/skimage`),
 //! `CALIPER_BENCH_NO_PEER=1` (skip the peer), `CALIPER_BENCH_IMAGES` (comma-separated file stems,
 //! default `camera,astronaut,coffee,chelsea`), `CALIPER_BENCH_TIMING_ONLY=1` (only the 1920×1080
 //! timings, skipping the quality set), `CALIPER_BENCH_ONLY` (comma-separated subset of
@@ -220,7 +221,7 @@ fn peer(
     runs: usize,
 ) -> Option<(f64, f64)> {
     let script = workspace_root().join("../shared/peers/deconv_skimage.py");
-    let mut cmd = Command::new("python3");
+    let mut cmd = Command::new(common::python());
     cmd.arg(&script)
         .arg("--blurred")
         .arg(blurred)

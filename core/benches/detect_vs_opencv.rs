@@ -4,7 +4,8 @@
 //! to both sides as the same PNG files.
 //!
 //! `cargo bench -p caliper-core --bench detect_vs_opencv`
-//! Env: `CALIPER_SHARED_DATA` (default `<workspace>/../shared/data`, then `/work/shared/data`),
+//! Env: `CALIPER_PYTHON` (the peer's interpreter, default `python3`),
+//! `CALIPER_SHARED_DATA` (default `<workspace>/../shared/data`, then `/work/shared/data`),
 //! `CALIPER_BENCH_RUNS` (default 5, median reported), `RAYON_NUM_THREADS`,
 //! `CALIPER_BENCH_SETS` (only the sets whose label contains one of these comma-separated
 //! words), `CALIPER_BENCH_NO_PEER=1` (ours only, e.g. under a profiler).
@@ -170,7 +171,7 @@ fn run_peer(set: &Set, data: &Path, runs: usize) -> Result<Side, String> {
     if !script.exists() {
         return Err(format!("peer script {} not found", script.display()));
     }
-    let mut cmd = Command::new("python3");
+    let mut cmd = Command::new(common::python());
     cmd.arg(&script)
         .args(["--images", &set.glob])
         .args(["--cols", &set.cols.to_string()])
@@ -181,7 +182,7 @@ fn run_peer(set: &Set, data: &Path, runs: usize) -> Result<Side, String> {
     }
     let out = cmd
         .output()
-        .map_err(|e| format!("cannot run python3: {e}"))?;
+        .map_err(|e| format!("cannot run {:?}: {e}", common::python()))?;
     if !out.status.success() {
         return Err(format!(
             "peer failed: {}",

@@ -2,7 +2,8 @@
 //! synthetic static log: stage times, speed ratio, peak RSS and errors vs truth.
 //!
 //! `cargo bench -p caliper-core --bench imu_vs_peer`
-//! Env: `IMU_HOURS` (default 1; 6 for the 460 MB log), `CALIPER_BENCH_RUNS` (default 3, ours),
+//! Env: `CALIPER_PYTHON` (the peer's interpreter, default `python3`),
+//! `IMU_HOURS` (default 1; 6 for the 460 MB log), `CALIPER_BENCH_RUNS` (default 3, ours),
 //! `IMU_PEER_RUNS` (default 1), `IMU_SKIP_PEER=1` to time ours only. The log is generated with the
 //! peer (`synth static --hours H --seed 6 --out /tmp/static_{H}h.csv`) when missing.
 
@@ -69,7 +70,7 @@ fn main() {
     let peer = peer_dir().join("imu_allan.py");
     if !csv.exists() || !truth.exists() {
         eprintln!("generating {} with the peer …", csv.display());
-        let st = Command::new("python3")
+        let st = Command::new(common::python())
             .arg(&peer)
             .args([
                 "synth",
@@ -146,7 +147,7 @@ fn main() {
     let peer_json: Option<serde_json::Value> = if std::env::var("IMU_SKIP_PEER").is_ok() {
         None
     } else {
-        let out = Command::new("python3")
+        let out = Command::new(common::python())
             .arg(&peer)
             .arg("--csv")
             .arg(&csv)

@@ -2,7 +2,8 @@
 //! OpenCV peer (Debevec, Robertson) and the shared reference batch fit.
 //!
 //! Data from `CALIPER_PHOTO_DATA` (default `../shared/data/photometric` next to the
-//! workspace); the peer script is run in the same process unless `CALIPER_BENCH_NO_PEER=1`.
+//! workspace); the peer script runs under `CALIPER_PYTHON` (default `python3`, which needs cv2)
+//! unless `CALIPER_BENCH_NO_PEER=1`.
 //!
 //! ```text
 //! cargo bench -p caliper-core --bench photometric_vs_opencv
@@ -112,7 +113,7 @@ struct Peer {
 
 fn run_peer(data: &Path, bracket: &Path) -> Result<Peer, String> {
     let script = data.join("../../peers/photometric_opencv.py");
-    let out = Command::new("python3")
+    let out = Command::new(common::python())
         .arg(&script)
         .arg("--images")
         .arg(format!("{}/images/*.png", bracket.display()))

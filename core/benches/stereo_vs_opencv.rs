@@ -145,7 +145,7 @@ fn camera_of(v: &Value) -> Option<PinholeRadTan> {
 /// Runs the peer on the shared images; with `corners_in`, on those corners instead of its own
 /// detections.
 fn run_peer(data: &Path, corners_in: Option<&Path>, runs: usize) -> Result<Peer, String> {
-    let py = std::env::var("CALIPER_PYTHON").unwrap_or_else(|_| "python3".into());
+    let py = common::python();
     let dir = data.join("camera/opencv_stereo");
     let mut cmd = Command::new(py);
     cmd.arg(data.join("../peers/camera_opencv.py"))

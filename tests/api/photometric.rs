@@ -531,6 +531,14 @@ async fn photometric_online_refuses_frames_that_no_track_connects() {
     assert_eq!(parts.len(), 30);
     assert_eq!((parts[14].as_u64(), parts[15].as_u64()), (Some(0), Some(1)));
     assert_eq!(doc["quality"]["exposure_parts"], 2, "{doc}");
+    // The measured levels are in the document and its quality summary, between the cuts.
+    let m = &doc["quality"]["measured_levels"];
+    assert_eq!(m, &doc["parameters"]["measured_levels"], "{doc}");
+    let (lo, hi) = (m["low"].as_f64(), m["high"].as_f64());
+    assert!(
+        matches!((lo, hi), (Some(l), Some(h)) if (3.0..h).contains(&l) && h <= 250.0),
+        "{m}"
+    );
     let r = reqwest::get(s.url(&format!("/v1/jobs/{id}/artifacts/times.txt")))
         .await
         .expect("request");

@@ -26,3 +26,11 @@ pub fn timed<T>(runs: usize, mut f: impl FnMut() -> T) -> (T, f64) {
     }
     (out.expect("runs >= 1"), median(ts))
 }
+
+/// The Python interpreter the peer scripts run under: `CALIPER_PYTHON` (a virtual
+/// environment with cv2, scikit-image, allantools) or `python3` from the `PATH`. A system
+/// Python usually lacks cv2, and a peer that fails to import is a peer that did not run.
+#[allow(dead_code)]
+pub fn python() -> std::ffi::OsString {
+    std::env::var_os("CALIPER_PYTHON").unwrap_or_else(|| "python3".into())
+}

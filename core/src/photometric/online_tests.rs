@@ -63,6 +63,13 @@ fn online_calibration_recovers_model() {
     assert!(r.diagnostics.monotone);
     // Exposure 0 is the unit.
     assert!((r.exposure_ratios[0] - 1.0).abs() < 1e-12);
+    // The measured levels lie between the cuts (3 and 250) and span most of them on this
+    // clip, whose auto-exposure sweeps the scene over the range.
+    let m = r.measured_levels.expect("measured samples");
+    assert!(
+        m.low >= 3.0 && m.high <= 250.0 && m.high - m.low > 100.0,
+        "{m:?}"
+    );
 }
 
 /// The first of two passes stops at its gauge profile ([`online::first_look`]); the response

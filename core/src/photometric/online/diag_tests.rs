@@ -210,6 +210,35 @@ fn drift(
         })
         .collect();
     eprintln!("   drift px: {}", txt.join(" | "));
+    if std::env::var_os("DIAG_FRAMES").is_some() {
+        // Per frame: observations, their median value and how many points they share with
+        // later frames.
+        for f in 0..8u32 {
+            let mut v: Vec<f32> = obs
+                .iter()
+                .filter(|o| o.frame == f && o.measured())
+                .map(|o| o.value)
+                .collect();
+            v.sort_by(f32::total_cmp);
+            let pts: std::collections::BTreeSet<u32> = obs
+                .iter()
+                .filter(|o| o.frame == f)
+                .map(|o| o.point)
+                .collect();
+            let later = obs
+                .iter()
+                .filter(|o| o.frame > f && pts.contains(&o.point))
+                .count();
+            eprintln!(
+                "   frame {f}: obs {} points {} median {:.3} p10 {:.3} p90 {:.3} later obs {later}",
+                v.len(),
+                pts.len(),
+                v.get(v.len() / 2).copied().unwrap_or(f32::NAN),
+                v.get(v.len() / 10).copied().unwrap_or(f32::NAN),
+                v.get(9 * v.len() / 10).copied().unwrap_or(f32::NAN),
+            );
+        }
+    }
     with_obs(seen, obs)
 }
 
@@ -353,12 +382,20 @@ fn run_seeded(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3
         seed,
     };
     let seq = render_ae_video(&cam, nf, &video);
-    let truth_m = cam.response.forward(0.5).clamp(0.06, 0.94);
+    let truth_m = if std::env::var_os("DIAG_NOCLAMP").is_some() {
+        cam.response.forward(0.5)
+    } else {
+        cam.response.forward(0.5).clamp(0.06, 0.94)
+    };
     // The rendered law (the camera's polynomial unless the video sets another).
     let truth_vig = seq.vignette_map.clone();
     let score = |name: &str, seen: Observations, gauge: Option<f64>| {
         let p = OnlineParams {
             gamma_gauge: gauge,
+            max_iterations: std::env::var("DIAG_ITERS")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(40),
             ..OnlineParams::default()
         };
         let nobs = seen.obs.len();
@@ -400,6 +437,9 @@ fn run_seeded(label: &str, response: ResponseModel, video: AeVideo, vig: [f64; 3
         .iter()
         .fold((9.0f64, 0.0f64), |a, &e| (a.0.min(e), a.1.max(e)));
     let sat = clipped_fraction(&seq.frames);
+    if std::env::var_os("DIAG_FRAMES").is_some() {
+        eprintln!("   exposures {:.3?}", &seq.exposures[..12]);
+    }
     eprintln!(
         "{label}: truth f(.5) {:.3}, exposures {lo:.3}..{hi:.3}, {:.1} % clipped",
         cam.response.forward(0.5),
@@ -697,4 +737,13 @@ fn diag_tuning_1() {
         ],
         1,
     );
+}
+
+/// The sweep's tuning#6 (f(0.5) = 0.95, the wave texture, auto-exposure over 0.05–1.00):
+/// where its samples lose the response, tracker or fit (`DIAG_GT=1`, `DIAG_RM=1`).
+#[test]
+#[ignore]
+fn diag_tuning6() {
+    let (cam, video) = super::diag_truth_tests::tuning6();
+    run_seeded("tuning#6", cam.response, video, cam.vignette, cam.seed);
 }

@@ -349,7 +349,7 @@ pub(super) fn eval4_3() -> (SynthCamera, AeVideo) {
 }
 
 /// The sweep's tuning#6 at 320×240 (printed by the sweep with `SWEEP_DEBUG=1`).
-fn tuning6() -> (SynthCamera, AeVideo) {
+pub(super) fn tuning6() -> (SynthCamera, AeVideo) {
     let cam = sweep_camera(
         [
             -6.603167792999848,

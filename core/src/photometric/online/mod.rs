@@ -41,6 +41,7 @@ mod diag_truth_tests;
 mod feature_tests;
 mod gauge;
 pub(crate) mod klt;
+mod levels;
 mod linked;
 mod observe;
 mod response_match;
@@ -49,6 +50,7 @@ mod vig_model;
 
 pub use center::{CenterMode, CenterReport};
 pub use channels::{ChannelResponse, Channels, photometric_online_rgb};
+pub use levels::MeasuredLevels;
 
 use serde::{Deserialize, Serialize};
 
@@ -243,6 +245,11 @@ pub struct OnlineResult {
     /// then relative to the first frame of each frame's part. Absent for a linked video.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub exposure_parts: Option<Vec<usize>>,
+    /// The recorded levels in which the fit saw measured (unclipped, uncut) samples; outside
+    /// them the response follows the EMoR-4 model's shape, not the data (a strongly concave
+    /// camera may show nothing unclipped in its top levels).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub measured_levels: Option<MeasuredLevels>,
 }
 
 impl OnlineResult {
@@ -438,6 +445,7 @@ pub(crate) fn fit(
         channel_responses: None,
         tracking_passes: 1,
         exposure_parts: parts,
+        measured_levels: levels::measured_levels(&obs),
     })
 }
 

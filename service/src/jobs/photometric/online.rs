@@ -113,6 +113,7 @@ impl Kind for PhotometricOnline {
             "vignette_center_estimated": r.vignette_center.estimated,
             "vignette_model": r.vignette_choice.model,
             "exposure_parts": r.exposure_part_count(),
+            "measured_levels": r.measured_levels,
         });
         let mut artifacts = response_artifacts(&r.model)?;
         // One DSO pcalib per channel (DSO reads one response; pick the channel it images).
