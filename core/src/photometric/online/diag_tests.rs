@@ -747,7 +747,7 @@ fn diag_tuning_1() {
 /// at a residual of 0.34 levels (converged: `DIAG_ITERS=300` changes nothing); the tracks'
 /// samples at true positions (`truepos`) at 0.955 give 0.048 / 0.22, frame 0's exposure 117 %
 /// off (27 measured samples in that frame, the brightest of the auto-exposure's transient,
-/// against about 110 in the next frames); the default fit 0.044 / 0.085 at its gauge 0.87.
+/// against about 110 in the next frames); the one-pass fit with its own gauge 0.044 / 0.085.
 #[test]
 #[ignore]
 fn diag_tuning6() {
