@@ -61,11 +61,16 @@ impl TestDb {
 }
 
 fn uuid_simple() -> String {
+    // The clock alone is not enough: tests run in parallel threads, and two of them once read
+    // the same time (CI: "database caliper_t_… already exists"). A counter keeps the names of
+    // one process apart, the process id those of concurrent test binaries.
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let nanos = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_nanos())
         .unwrap_or(0);
-    format!("{:x}{:x}", nanos, std::process::id())
+    format!("{:x}{:x}_{n}", nanos, std::process::id())
 }
 
 /// The first admin token, made with the CLI against the shared store.
