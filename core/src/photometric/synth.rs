@@ -102,13 +102,83 @@ impl SynthCamera {
         irr: impl Fn(f64, f64) -> f64,
         vig: impl Fn(f64, f64) -> f64,
     ) -> PhotoImage {
+        self.form_from(rng, |x, y| irr(x as f64, y as f64), vig)
+    }
+
+    /// [`Self::form_with`] through a lens that blurs the irradiance by a Gaussian of `sigma`
+    /// pixels, each pixel integrating its area (2 × 2 supersampling, then the blur, then the
+    /// box): optical blur acts before the response, so the recorded values of a soft edge are
+    /// `f` of mixed irradiance, not mixtures of `f`.
+    fn form_blurred(
+        &self,
+        rng: &mut Rng,
+        irr: impl Fn(f64, f64) -> f64,
+        vig: impl Fn(f64, f64) -> f64,
+        sigma: f64,
+    ) -> PhotoImage {
+        if sigma <= 0.0 {
+            return self.form_with(rng, irr, vig);
+        }
+        const SS: usize = 2;
+        let s = sigma * SS as f64;
+        let m = (3.0 * s).ceil() as usize;
+        let (gw, gh) = (self.width * SS + 2 * m, self.height * SS + 2 * m);
+        let at = |i: usize| (i as f64 - m as f64 + 0.5) / SS as f64 - 0.5;
+        let mut grid: Vec<f64> = (0..gh)
+            .flat_map(|gy| (0..gw).map(move |gx| (gx, gy)))
+            .map(|(gx, gy)| irr(at(gx), at(gy)))
+            .collect();
+        let taps: Vec<f64> = {
+            let t: Vec<f64> = (0..=2 * m)
+                .map(|k| (-((k as f64 - m as f64) / s).powi(2) / 2.0).exp())
+                .collect();
+            let sum: f64 = t.iter().sum();
+            t.iter().map(|v| v / sum).collect()
+        };
+        // Separable blur; rows then columns, each output only where the taps fit.
+        let mut tmp = vec![0.0; gw * gh];
+        for y in 0..gh {
+            for x in m..gw - m {
+                tmp[y * gw + x] = (0..taps.len())
+                    .map(|k| taps[k] * grid[y * gw + x + k - m])
+                    .sum();
+            }
+        }
+        for y in m..gh - m {
+            for x in m..gw - m {
+                grid[y * gw + x] = (0..taps.len())
+                    .map(|k| taps[k] * tmp[(y + k - m) * gw + x])
+                    .sum();
+            }
+        }
+        let area = |x: usize, y: usize| {
+            let (x0, y0) = (m + x * SS, m + y * SS);
+            let mut acc = 0.0;
+            for dy in 0..SS {
+                for dx in 0..SS {
+                    acc += grid[(y0 + dy) * gw + x0 + dx];
+                }
+            }
+            acc / (SS * SS) as f64
+        };
+        self.form_from(rng, area, vig)
+    }
+
+    /// Response, noise and quantisation of the irradiance `irr` at pixel `(x, y)` (exposure
+    /// included, before vignetting).
+    fn form_from(
+        &self,
+        rng: &mut Rng,
+        irr: impl Fn(usize, usize) -> f64,
+        vig: impl Fn(f64, f64) -> f64,
+    ) -> PhotoImage {
         let fwd = self.response.forward_table();
         let max = f64::from(self.max_level());
         let mut data = Vec::with_capacity(self.width * self.height);
         for y in 0..self.height {
             for x in 0..self.width {
                 let (xf, yf) = (x as f64, y as f64);
-                let e = irr(xf, yf) * vig(xf, yf);
+                let e = irr(x, y) * vig(xf, yf);
                 let sigma = (self.shot * e.max(0.0) + self.read * self.read).sqrt();
                 let e = (e + sigma * rng.normal()).clamp(0.0, 1.0);
                 data.push((interp_table(&fwd, e) * max).round() as u16);
@@ -322,6 +392,11 @@ pub struct AeVideo {
     /// Factor on the amplitude of the slow rotation and zoom (1 = the default motion); more
     /// rotation and zoom is what makes the vignetting centre observable.
     pub turn: f64,
+    /// Standard deviation in pixels of a Gaussian lens blur on the irradiance (before the
+    /// response), with each pixel integrating its area; 0 point-samples the scene at the pixel
+    /// centres (sharp, as every split rendered before 2026-12-06). Real cameras are soft at the
+    /// pixel scale, and the tracker's patches then see less structure.
+    pub optics_blur: f64,
 }
 
 impl Default for AeVideo {
@@ -340,6 +415,7 @@ impl Default for AeVideo {
             vignette: VignetteForm::Polynomial,
             vignette_shift: [0.0; 2],
             turn: 1.0,
+            optics_blur: 0.0,
         }
     }
 }
@@ -491,13 +567,14 @@ fn render_planes(
         let (c, s) = (th.cos() * sc, th.sin() * sc);
         let mut mean = 0.5;
         for (ch, ((_, gain), ccam)) in channels.iter().zip(&cams).enumerate() {
-            let img = ccam.form_with(
+            let img = ccam.form_blurred(
                 &mut rng,
                 |x, y| {
                     let (px, py) = (x - cx, y - cy);
                     e * gain * radiance(c * px - s * py + tx, s * px + c * py + ty)
                 },
                 vig,
+                video.optics_blur,
             );
             if ch == meter {
                 mean = img.data.iter().map(|&v| f64::from(v)).sum::<f64>()

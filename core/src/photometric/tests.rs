@@ -364,3 +364,72 @@ fn walk_gaussian_and_blocks_generators() {
     assert!(flat > 0.7, "flat fraction {flat}");
     assert!(steps.iter().any(|&d| d > 20), "no block edge");
 }
+
+/// The lens blur of the renderer softens edges (less energy in the differences between
+/// neighbours on a Mondrian) without moving the exposure program or the mean level, and 0 is
+/// the sharp renderer.
+#[test]
+fn optics_blur_softens_edges_only() {
+    use super::synth::{AeVideo, SceneForm, render_ae_video};
+    // Noiseless, so that the differences between neighbours are the scene's edges.
+    let cam = SynthCamera {
+        shot: 0.0,
+        read: 0.0,
+        ..SynthCamera::reference(64, 48, 5)
+    };
+    // One stop of contrast: nothing clipped, so blur moves no light into clipped areas.
+    let sharp = AeVideo {
+        scene: SceneForm::Blocks,
+        stops: 1.0,
+        ..AeVideo::default()
+    };
+    let soft = AeVideo {
+        optics_blur: 2.0,
+        ..sharp.clone()
+    };
+    let a = render_ae_video(&cam, 3, &sharp);
+    let b = render_ae_video(&cam, 3, &soft);
+    let again = render_ae_video(
+        &cam,
+        3,
+        &AeVideo {
+            optics_blur: 0.0,
+            ..sharp.clone()
+        },
+    );
+    assert_eq!(a.frames[0].data, again.frames[0].data);
+    // Blur keeps a monotone edge's total rise and spreads it, so the energy of the
+    // neighbour differences falls (by about 2σ√π for a step).
+    let step_energy = |f: &PhotoImage| -> f64 {
+        f.data
+            .chunks(64)
+            .flat_map(|row| {
+                row.windows(2)
+                    .map(|p| (f64::from(p[1]) - f64::from(p[0])).powi(2))
+            })
+            .sum()
+    };
+    let mean = |f: &PhotoImage| f.data.iter().map(|&v| f64::from(v)).sum::<f64>() / 3072.0;
+    let (sa, sb) = (step_energy(&a.frames[0]), step_energy(&b.frames[0]));
+    // The scene's block edges are ramps of a few pixels already, so σ = 2 px widens them by
+    // about half; σ = 4 px by more.
+    let softer = render_ae_video(
+        &cam,
+        1,
+        &AeVideo {
+            optics_blur: 4.0,
+            ..sharp.clone()
+        },
+    );
+    let sc = step_energy(&softer.frames[0]);
+    assert!(
+        sb < 0.75 * sa && sc < 0.8 * sb,
+        "neighbour-difference energy sharp {sa}, σ 2 px {sb}, σ 4 px {sc}"
+    );
+    let (ma, mb) = (mean(&a.frames[0]), mean(&b.frames[0]));
+    assert!(
+        (ma - mb).abs() < 0.05 * ma,
+        "mean level sharp {ma}, blurred {mb}"
+    );
+    assert_eq!(a.exposures[0], b.exposures[0]);
+}
