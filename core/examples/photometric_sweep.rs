@@ -73,9 +73,10 @@
 //! `soft-eval` 11 of 12 (the miss `soft-eval#0`, f(0.5) = 0.77 under the sweep program, the
 //! gauge off: α 1.70, 0.0104 / 0.0146 / 1.74 %), 9.2 s median, 11.0 s worst. Stronger blur
 //! and faster motion on `tuning#0` and `#2` (`SWEEP_BLUR`, `SWEEP_SPEED`): σ = 4 px still
-//! meets the targets but loses accuracy (`#0` 0.0019 / 0.0082 / 1.46 % against 0.0007 /
-//! 0.0008 / 0.41 % sharp); 2× and 4× the motion (4–8 px per frame) 0.0002–0.0004 / 0.0007–
-//! 0.0009 / 0.36–0.61 %. Rendered at 1280×960 (more of the scene, same pixel scale),
+//! meets the targets but loses accuracy (`#0` 0.0019 / 0.0082 / 1.46 % against 0.0002 /
+//! 0.0010 / 0.32 % sharp, `#2` 0.0017 / 0.0007 / 0.87 % against 0.0010 / 0.0005 / 0.20 %);
+//! `#0` with 2× and 4× the motion (4–8 px per frame) 0.0002–0.0004 / 0.0007–0.0009 /
+//! 0.36–0.61 %. Rendered at 1280×960 (more of the scene, same pixel scale),
 //! `tuning 4 200 1280 960`: the same passes and misses as at 320×240 (`#3`'s vignette 0.0118),
 //! 14–19 s per sequence. A frame upscaled 4× after the response (bicubic, so edges are
 //! mixtures of recorded values, which no lens produces) lost most of its tracks (mean track
