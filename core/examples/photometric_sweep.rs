@@ -82,6 +82,14 @@
 //! mixtures of recorded values, which no lens produces) lost most of its tracks (mean track
 //! length 3 against 20) and its exposures were 2.7 % off.
 //!
+//! Compression (same session): `ae_seq_seed0`'s frames encoded with x264 (High, yuv420p,
+//! 20 fps) and fitted through `SWEEP_CLIP` (`shared`), response / vignette / exposure: CRF 8
+//! (the shared clip, 2.0 bits per pixel) 0.0009 / 0.0006 / 0.31 %, CRF 18 (0.26) 0.0006 /
+//! 0.0010 / 0.72 %, CRF 23 (0.09) 0.0016 / 0.0033 / 2.04 %, CRF 28 (0.05) 0.0024 / 0.0070 /
+//! 3.98 %; the PNG frames 0.0002 / 0.0005 / 0.12 %. The exposure error at CRF 28 drifts with
+//! the exposure (−6 % to +10 % against frame 0 from the bright start to the dark end): the
+//! predicted frames' quantised residuals understate small brightness changes.
+//!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \
 //!     [tuning|saturated|scripted|lens|scenes|soft|eval|eval2|…|eval9|soft-eval|shared] [cases] [frames] [width] [height]
@@ -260,7 +268,8 @@
 //! each case's camera and video settings (to rebuild it in a diagnostic); `SWEEP_DUMP=DIR` writes
 //! each case's first frame as a PNG. `shared` runs the
 //! shared `ae_seq_seed0` (from `CALIPER_PHOTO_DATA`, default `../shared/data/photometric`)
-//! instead.
+//! instead; with `SWEEP_CLIP=clip.mp4` (and `--features video`) it fits the frames of an
+//! H.264 clip of it (compression).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -713,6 +722,52 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
+/// Every frame of an H.264 clip of the shared frames (`SWEEP_CLIP`, e.g. re-encoded at another
+/// quality with `ffmpeg -framerate 20 -i images/%06d.png -c:v libx264 -crf 23 -pix_fmt yuv420p`),
+/// its limited-range luma expanded to full range as the service's clip path does. Needs the
+/// `video` feature (`--features video`).
+#[cfg(feature = "video")]
+fn clip_frames(path: &Path) -> Result<Vec<PhotoImage>, String> {
+    use caliper_core::video::{FrameFormat, FrameOptions, FrameReader, VideoLimits};
+    let file = std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let options = FrameOptions {
+        format: FrameFormat::Luma,
+        ..FrameOptions::default()
+    };
+    let mut reader = FrameReader::open(
+        std::io::BufReader::new(file),
+        &VideoLimits::default(),
+        options,
+    )
+    .map_err(|e| e.to_string())?;
+    let mut out = Vec::new();
+    while let Some(frame) = reader.next_frame() {
+        let g = frame.map_err(|e| e.to_string())?.image.into_luma();
+        let (w, h) = g.dimensions();
+        let data = g
+            .into_raw()
+            .iter()
+            .map(|&y| {
+                ((f64::from(y) - 16.0) * (65535.0 / 219.0))
+                    .round()
+                    .clamp(0.0, 65535.0) as u16
+            })
+            .collect();
+        out.push(PhotoImage {
+            width: w as usize,
+            height: h as usize,
+            max_level: 65535,
+            data,
+        });
+    }
+    Ok(out)
+}
+
+#[cfg(not(feature = "video"))]
+fn clip_frames(_: &Path) -> Result<Vec<PhotoImage>, String> {
+    Err("SWEEP_CLIP needs the example built with `--features video`".into())
+}
+
 fn shared(dir: &Path) -> Result<Row, String> {
     let read = |p: PathBuf| std::fs::read(&p).map_err(|e| format!("{}: {e}", p.display()));
     let mut paths: Vec<PathBuf> = std::fs::read_dir(dir.join("images"))
@@ -721,10 +776,15 @@ fn shared(dir: &Path) -> Result<Row, String> {
         .filter(|p| p.extension().is_some_and(|x| x == "png"))
         .collect();
     paths.sort();
-    let frames = paths
-        .into_iter()
-        .map(|p| PhotoImage::decode(&read(p)?, &ImageLimits::default()).map_err(|e| e.to_string()))
-        .collect::<Result<Vec<_>, _>>()?;
+    let frames = match std::env::var_os("SWEEP_CLIP") {
+        Some(clip) => clip_frames(Path::new(&clip))?,
+        None => paths
+            .into_iter()
+            .map(|p| {
+                PhotoImage::decode(&read(p)?, &ImageLimits::default()).map_err(|e| e.to_string())
+            })
+            .collect::<Result<Vec<_>, _>>()?,
+    };
     let gt: serde_json::Value =
         serde_json::from_slice(&read(dir.join("gt.json"))?).map_err(|e| format!("gt.json: {e}"))?;
     let f64s = |v: &serde_json::Value| -> Vec<f64> {
