@@ -88,8 +88,8 @@
 //! 0.0010 / 0.72 %, CRF 23 (0.09) 0.0016 / 0.0033 / 2.04 %, CRF 28 (0.05) 0.0024 / 0.0070 /
 //! 3.98 %; the PNG frames 0.0002 / 0.0005 / 0.12 %. The exposure error at CRF 28 drifts with
 //! the exposure (about −5 % in the bright first frames, +7 % at the dark end, after the best
-//! common scale; `SWEEP_FRAMES=1 SWEEP_ALL=1`): the
-//! predicted frames' quantised residuals understate small brightness changes.
+//! common scale; `SWEEP_FRAMES=1 SWEEP_ALL=1`): the predicted frames' quantised residuals
+//! understate small brightness changes.
 //!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \
