@@ -38,6 +38,8 @@ async fn clips_are_probed_at_upload_and_bad_ones_refused_by_name() {
         "{v}"
     );
     assert!(v["keyframe_count"].as_u64().unwrap_or(0) >= 1);
+    let bpp = v["bits_per_pixel"].as_f64().unwrap_or(0.0);
+    assert!(bpp > 0.0 && bpp < 24.0, "{v}");
     let (st, again) = s
         .get_json(&format!("/v1/datasets/{}", ds["id"].as_str().unwrap_or("")))
         .await;

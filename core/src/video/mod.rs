@@ -109,6 +109,12 @@ pub struct VideoInfo {
     pub frames_in_file: u64,
     /// Whether the file ends before the last frame's data.
     pub truncated: bool,
+    /// Coded bits per pixel and frame over the frames in the file (the mean bitrate divided
+    /// by the pixel rate): how hard the clip was compressed. Below about 0.25, exposure
+    /// changes can come out understated, since predicted frames carry small brightness
+    /// changes only as quantised residuals (the README's photometric limits).
+    #[serde(default)]
+    pub bits_per_pixel: f64,
 }
 
 /// Describes a clip from its index, whatever the codec; checks only the limits needed to
@@ -187,6 +193,18 @@ fn info_of(track: &demux::Track) -> VideoInfo {
         .iter()
         .take_while(|s| s.in_file(track.file_len))
         .count() as u64;
+    let coded_bytes: u64 = track
+        .samples
+        .iter()
+        .take(frames_in_file as usize)
+        .map(|s| u64::from(s.size))
+        .sum();
+    let pixels = u64::from(track.width) * u64::from(track.height) * frames_in_file;
+    let bits_per_pixel = if pixels > 0 {
+        coded_bytes as f64 * 8.0 / pixels as f64
+    } else {
+        0.0
+    };
     let (display_width, display_height) = if track.rotation_deg % 180 == 90 {
         (track.height, track.width)
     } else {
@@ -207,5 +225,6 @@ fn info_of(track: &demux::Track) -> VideoInfo {
         reordered,
         frames_in_file,
         truncated: frames_in_file < n,
+        bits_per_pixel,
     }
 }

@@ -57,6 +57,13 @@ fn round_trip_gray_clip() {
     assert!((info.duration_s - 0.8).abs() < 1e-9);
     assert!(matches!(info.codec, Codec::H264 { .. }), "{:?}", info.codec);
     assert!(info.keyframe_count >= 1 && !info.truncated);
+    // The coded frames are most of the file (the rest is the index and headers).
+    let file_bpp = clip.len() as f64 * 8.0 / (96.0 * 64.0 * 20.0);
+    assert!(
+        info.bits_per_pixel > 0.3 * file_bpp && info.bits_per_pixel < file_bpp,
+        "{} bits per pixel, the file {file_bpp}",
+        info.bits_per_pixel
+    );
     let (frames, err) = luma_frames(&clip, FrameOptions::default());
     assert!(err.is_none(), "{err:?}");
     assert_eq!(frames.len(), 20);
@@ -70,6 +77,32 @@ fn round_trip_gray_clip() {
         assert!(p > 35.0, "frame {i}: PSNR {p:.1}");
     }
     assert!(frames[0].keyframe);
+}
+
+/// A clip coded at a lower bitrate reports fewer bits per pixel.
+#[test]
+fn bits_per_pixel_follow_the_bitrate() {
+    // Fine texture moving 3 px per frame: costly enough that the bitrate decides the quality.
+    let src: Vec<GrayImage> = (0..30u32)
+        .map(|t| {
+            GrayImage::from_fn(160, 120, |x, y| {
+                let h = (x + 3 * t).wrapping_mul(2_654_435_761) ^ y.wrapping_mul(40_503);
+                Luma([(40 + (h >> 7) % 180) as u8])
+            })
+        })
+        .collect();
+    let bpp = |bitrate: u32| {
+        let opts = WriterOptions {
+            bitrate,
+            ..Default::default()
+        };
+        let clip = encode_h264_mp4_with(&src, 30.0, &opts).unwrap();
+        probe(Cursor::new(&clip), &VideoLimits::default())
+            .unwrap()
+            .bits_per_pixel
+    };
+    let (high, low) = (bpp(2_000_000), bpp(100_000));
+    assert!(low > 0.0 && low < 0.6 * high, "{low} against {high}");
 }
 
 #[test]
