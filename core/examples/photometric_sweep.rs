@@ -65,13 +65,13 @@
 //! * `soft-eval`: seeds from 15 000, `eval`'s generators through the same soft lens, held out.
 //!
 //! Soft optics (2026-12-06, third session; nothing in the fit changed). Run once each on the
-//! fit as shipped, 200 frames at 320×240, 2 cores (this machine runs the shared
-//! `ae_seq_seed0` in 9.4 s through the CLI where the previous one took 5.4 s, so the times
-//! are not comparable with the records above): `soft` 11 of 12 within the three accuracy
-//! targets (medians 0.0011 / 0.0031 / 0.40 %; the miss `soft#7` is a camera with f(0.5) =
-//! 0.96, the concave family below: 0.0124 / 0.0091 / 3.37 %), 8.2 s median, 9.6 s worst;
-//! `soft-eval` 11 of 12 (the miss `soft-eval#0`, f(0.5) = 0.77 under the sweep program, the
-//! gauge off: α 1.70, 0.0104 / 0.0146 / 1.74 %), 9.2 s median, 11.0 s worst. Stronger blur
+//! fit as shipped, 200 frames at 320×240, 2 cores (this machine fits the shared
+//! `ae_seq_seed0` in 9.5 s where the previous one took 5.4 s, so the times are not comparable
+//! with the records above): `soft` 11 of 12 within the three accuracy targets (medians
+//! 0.0010 / 0.0028 / 0.39 %; the miss `soft#7` is a camera with f(0.5) = 0.96, the concave
+//! family below: 0.0124 / 0.0091 / 3.37 %), 8.1 s median, 9.6 s worst; `soft-eval` 11 of 12
+//! (medians 0.0011 / 0.0022 / 0.43 %; the miss `soft-eval#0`, f(0.5) = 0.77 under the sweep
+//! program, the gauge off: α 1.70, 0.0104 / 0.0146 / 1.74 %), 9.2 s median, 10.9 s worst. Stronger blur
 //! and faster motion on `tuning#0` and `#2` (`SWEEP_BLUR`, `SWEEP_SPEED`): σ = 4 px still
 //! meets the targets but loses accuracy (`#0` 0.0019 / 0.0082 / 1.46 % against 0.0002 /
 //! 0.0010 / 0.32 % sharp, `#2` 0.0017 / 0.0007 / 0.87 % against 0.0010 / 0.0005 / 0.20 %);
