@@ -193,15 +193,17 @@ fn info_of(track: &demux::Track) -> VideoInfo {
         .iter()
         .take_while(|s| s.in_file(track.file_len))
         .count() as u64;
-    let coded_bytes: u64 = track
+    // In f64: the index is not checked against the limits yet, and a hostile header's
+    // width × height × frames can overflow any integer.
+    let coded_bytes: f64 = track
         .samples
         .iter()
         .take(frames_in_file as usize)
-        .map(|s| u64::from(s.size))
+        .map(|s| f64::from(s.size))
         .sum();
-    let pixels = u64::from(track.width) * u64::from(track.height) * frames_in_file;
-    let bits_per_pixel = if pixels > 0 {
-        coded_bytes as f64 * 8.0 / pixels as f64
+    let pixels = f64::from(track.width) * f64::from(track.height) * frames_in_file as f64;
+    let bits_per_pixel = if pixels > 0.0 {
+        coded_bytes * 8.0 / pixels
     } else {
         0.0
     };
