@@ -32,6 +32,7 @@ mod response;
 mod spline;
 mod spline_center;
 pub mod synth;
+mod synth_lens;
 mod vignette;
 
 #[cfg(test)]

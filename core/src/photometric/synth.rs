@@ -106,9 +106,7 @@ impl SynthCamera {
     }
 
     /// [`Self::form_with`] through a lens that blurs the irradiance by a Gaussian of `sigma`
-    /// pixels, each pixel integrating its area (2 × 2 supersampling, then the blur, then the
-    /// box): optical blur acts before the response, so the recorded values of a soft edge are
-    /// `f` of mixed irradiance, not mixtures of `f`.
+    /// pixels ([`super::synth_lens::blurred_irradiance`]); 0 is [`Self::form_with`].
     fn form_blurred(
         &self,
         rng: &mut Rng,
@@ -119,49 +117,8 @@ impl SynthCamera {
         if sigma <= 0.0 {
             return self.form_with(rng, irr, vig);
         }
-        const SS: usize = 2;
-        let s = sigma * SS as f64;
-        let m = (3.0 * s).ceil() as usize;
-        let (gw, gh) = (self.width * SS + 2 * m, self.height * SS + 2 * m);
-        let at = |i: usize| (i as f64 - m as f64 + 0.5) / SS as f64 - 0.5;
-        let mut grid: Vec<f64> = (0..gh)
-            .flat_map(|gy| (0..gw).map(move |gx| (gx, gy)))
-            .map(|(gx, gy)| irr(at(gx), at(gy)))
-            .collect();
-        let taps: Vec<f64> = {
-            let t: Vec<f64> = (0..=2 * m)
-                .map(|k| (-((k as f64 - m as f64) / s).powi(2) / 2.0).exp())
-                .collect();
-            let sum: f64 = t.iter().sum();
-            t.iter().map(|v| v / sum).collect()
-        };
-        // Separable blur; rows then columns, each output only where the taps fit.
-        let mut tmp = vec![0.0; gw * gh];
-        for y in 0..gh {
-            for x in m..gw - m {
-                tmp[y * gw + x] = (0..taps.len())
-                    .map(|k| taps[k] * grid[y * gw + x + k - m])
-                    .sum();
-            }
-        }
-        for y in m..gh - m {
-            for x in m..gw - m {
-                grid[y * gw + x] = (0..taps.len())
-                    .map(|k| taps[k] * tmp[(y + k - m) * gw + x])
-                    .sum();
-            }
-        }
-        let area = |x: usize, y: usize| {
-            let (x0, y0) = (m + x * SS, m + y * SS);
-            let mut acc = 0.0;
-            for dy in 0..SS {
-                for dx in 0..SS {
-                    acc += grid[(y0 + dy) * gw + x0 + dx];
-                }
-            }
-            acc / (SS * SS) as f64
-        };
-        self.form_from(rng, area, vig)
+        let e = super::synth_lens::blurred_irradiance(self.width, self.height, sigma, irr);
+        self.form_from(rng, |x, y| e[y * self.width + x], vig)
     }
 
     /// Response, noise and quantisation of the irradiance `irr` at pixel `(x, y)` (exposure
