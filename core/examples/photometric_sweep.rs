@@ -745,21 +745,11 @@ fn clip_frames(path: &Path) -> Result<Vec<PhotoImage>, String> {
     while let Some(frame) = reader.next_frame() {
         let g = frame.map_err(|e| e.to_string())?.image.into_luma();
         let (w, h) = g.dimensions();
-        let data = g
-            .into_raw()
-            .iter()
-            .map(|&y| {
-                ((f64::from(y) - 16.0) * (65535.0 / 219.0))
-                    .round()
-                    .clamp(0.0, 65535.0) as u16
-            })
-            .collect();
-        out.push(PhotoImage {
-            width: w as usize,
-            height: h as usize,
-            max_level: 65535,
-            data,
-        });
+        out.push(PhotoImage::from_limited_luma(
+            w as usize,
+            h as usize,
+            g.as_raw(),
+        ));
     }
     Ok(out)
 }

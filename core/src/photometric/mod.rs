@@ -120,6 +120,24 @@ impl PhotoImage {
         }
     }
 
+    /// From a video's limited-range 8-bit luma plane (black 16, white 235: the H.264 default),
+    /// expanded to 16-bit full range so that no level is lost to rounding.
+    pub fn from_limited_luma(width: usize, height: usize, luma: &[u8]) -> Self {
+        let data = luma
+            .iter()
+            .map(|&y| {
+                let v = (f64::from(y) - 16.0) * (65535.0 / 219.0);
+                v.round().clamp(0.0, 65535.0) as u16
+            })
+            .collect();
+        Self {
+            width,
+            height,
+            max_level: 65535,
+            data,
+        }
+    }
+
     /// Decode PNG/TIFF/JPEG bytes keeping the bit depth: 16-bit files stay 16-bit, everything
     /// else becomes 8-bit; colour is reduced to luma by the `image` crate (Rec. 709 weights).
     pub fn decode(bytes: &[u8], limits: &ImageLimits) -> CoreResult<Self> {

@@ -66,21 +66,7 @@ fn photo_image(width: u32, height: u32, luma: Vec<u8>, range: LumaRange) -> Phot
             height,
             data: luma,
         }),
-        LumaRange::Limited => {
-            let data: Vec<u16> = luma
-                .iter()
-                .map(|&y| {
-                    let v = (f64::from(y) - 16.0) * (65535.0 / 219.0);
-                    v.round().clamp(0.0, 65535.0) as u16
-                })
-                .collect();
-            PhotoImage {
-                width: width as usize,
-                height: height as usize,
-                max_level: 65535,
-                data,
-            }
-        }
+        LumaRange::Limited => PhotoImage::from_limited_luma(width as usize, height as usize, &luma),
     }
 }
 
