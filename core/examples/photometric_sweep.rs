@@ -63,6 +63,8 @@
 //!   of σ 0.6–2 px on the irradiance, before the response: `AeVideo::optics_blur`); every
 //!   other split is point-sampled and sharp at the pixel scale, which real cameras are not.
 //! * `soft-eval`: seeds from 15 000, `eval`'s generators through the same soft lens, held out.
+//! * `soft-eval2`: seeds from 16 000, the same again: fixed 2026-12-06 (fourth session's start,
+//!   before any choice) to confirm that session's compression findings once.
 //!
 //! Soft optics (2026-12-06, third session; nothing in the fit changed). Run once each on the
 //! fit as shipped, 200 frames at 320×240, 2 cores (this machine fits the shared
@@ -348,9 +350,10 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
             | "eval8"
             | "eval9"
             | "soft-eval"
+            | "soft-eval2"
     );
     // `soft`, `soft-eval`: a lens blur on the irradiance (see `AeVideo::optics_blur`).
-    let soft = matches!(set, "soft" | "soft-eval");
+    let soft = matches!(set, "soft" | "soft-eval" | "soft-eval2");
     let saturated = set == "saturated";
     let scripted = set == "scripted";
     let lens = set == "lens";
@@ -371,6 +374,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         "eval9" => (13_000 + i as u64, 127),
         "soft" => (14_000 + i as u64, 131),
         "soft-eval" => (15_000 + i as u64, 137),
+        "soft-eval2" => (16_000 + i as u64, 139),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));
@@ -759,6 +763,96 @@ fn clip_frames(_: &Path) -> Result<Vec<PhotoImage>, String> {
     Err("SWEEP_CLIP needs the example built with `--features video`".into())
 }
 
+/// A clip's coded bits per pixel and frame, as the upload reports it (`VideoInfo`).
+#[cfg(feature = "video")]
+fn clip_bits_per_pixel(path: &Path) -> Result<f64, String> {
+    use caliper_core::video::{VideoLimits, probe};
+    let file = std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    probe(std::io::BufReader::new(file), &VideoLimits::default())
+        .map(|i| i.bits_per_pixel)
+        .map_err(|e| e.to_string())
+}
+
+#[cfg(not(feature = "video"))]
+fn clip_bits_per_pixel(_: &Path) -> Result<f64, String> {
+    Err("SWEEP_CRF needs the example built with `--features video`".into())
+}
+
+/// `SWEEP_CRF=N`: a rendered case as a phone or action camera would hand it over, H.264
+/// (x264 High, yuv420p, 20 fps, constant rate factor N, `SWEEP_X264` extra options) through
+/// `ffmpeg` on `PATH`, decoded as the service decodes a clip. Returns the decoded frames and
+/// the clip's bits per pixel.
+fn encode_case(
+    frames: &[PhotoImage],
+    crf: &str,
+    tag: &str,
+) -> Result<(Vec<PhotoImage>, f64), String> {
+    use std::io::Write;
+    let first = frames.first().ok_or("no frames")?;
+    if first.max_level != 255 {
+        return Err("SWEEP_CRF needs 8-bit frames".into());
+    }
+    // `SWEEP_CRF=mjpeg:Q`: Motion-JPEG at ffmpeg's quality scale Q (2 best … 31) in a QuickTime
+    // file, as USB cameras deliver it.
+    let mjpeg = crf.strip_prefix("mjpeg:");
+    let ext = if mjpeg.is_some() { "mov" } else { "mp4" };
+    let out =
+        std::env::temp_dir().join(format!("caliper-sweep-{}-{tag}.{ext}", std::process::id()));
+    let size = format!("{}x{}", first.width, first.height);
+    let mut args = vec![
+        "-loglevel",
+        "error",
+        "-y",
+        "-f",
+        "rawvideo",
+        "-pix_fmt",
+        "gray",
+        "-s",
+        &size,
+        "-framerate",
+        "20",
+        "-i",
+        "-",
+    ];
+    match mjpeg {
+        Some(q) => args.extend(["-c:v", "mjpeg", "-pix_fmt", "yuvj420p", "-q:v", q]),
+        None => args.extend([
+            "-c:v",
+            "libx264",
+            "-profile:v",
+            "high",
+            "-pix_fmt",
+            "yuv420p",
+            "-crf",
+            crf,
+        ]),
+    }
+    let extra = std::env::var("SWEEP_X264").unwrap_or_default();
+    args.extend(extra.split_whitespace());
+    let out_str = out.to_string_lossy().into_owned();
+    args.push(&out_str);
+    let mut child = std::process::Command::new("ffmpeg")
+        .args(&args)
+        .stdin(std::process::Stdio::piped())
+        .spawn()
+        .map_err(|e| format!("ffmpeg: {e}"))?;
+    {
+        let mut stdin = child.stdin.take().ok_or("ffmpeg: no stdin")?;
+        for f in frames {
+            let px: Vec<u8> = f.data.iter().map(|&v| v as u8).collect();
+            stdin.write_all(&px).map_err(|e| format!("ffmpeg: {e}"))?;
+        }
+    }
+    let status = child.wait().map_err(|e| format!("ffmpeg: {e}"))?;
+    if !status.success() {
+        return Err(format!("ffmpeg failed: {status}"));
+    }
+    let decoded = clip_frames(&out)?;
+    let bpp = clip_bits_per_pixel(&out)?;
+    let _ = std::fs::remove_file(&out);
+    Ok((decoded, bpp))
+}
+
 fn shared(dir: &Path) -> Result<Row, String> {
     let read = |p: PathBuf| std::fs::read(&p).map_err(|e| format!("{}: {e}", p.display()));
     let mut paths: Vec<PathBuf> = std::fs::read_dir(dir.join("images"))
@@ -845,9 +939,19 @@ fn main() {
             let _ = image::GrayImage::from_raw(f.width as u32, f.height as u32, px)
                 .map(|g| g.save(format!("{dir}/{set}_{i}.png")));
         }
+        let (name, frames) = match std::env::var("SWEEP_CRF") {
+            Ok(crf) => match encode_case(&seq.frames, &crf, &i.to_string()) {
+                Ok((decoded, bpp)) => (format!("{name} crf {crf} bpp {bpp:.3}"), decoded),
+                Err(e) => {
+                    eprintln!("photometric_sweep: {name}: {e}");
+                    std::process::exit(1);
+                }
+            },
+            Err(_) => (name, seq.frames.clone()),
+        };
         rows.push(score(
             name,
-            &seq.frames,
+            &frames,
             &cam.response.inverse(256),
             &seq.vignette_map,
             &seq.exposures,

@@ -9,7 +9,9 @@ use caliper_core::photometric::synth::{
     AeVideo, SynthCamera, render_ae_cut, render_ae_sequence, render_ae_video_rgb, render_bracket,
     render_flats,
 };
-use caliper_core::photometric::{PhotoImage, ResponseModel, dso, metrics};
+use caliper_core::photometric::{
+    CompressionLevel, PhotoImage, ResponseModel, dso, judge_compression, metrics,
+};
 use image::{DynamicImage, ImageBuffer, ImageFormat, Luma};
 use serde_json::{Value, json};
 
@@ -323,6 +325,22 @@ async fn photometric_online_fits_an_auto_exposure_clip() {
     let clip = &doc["parameters"]["clip"];
     assert_eq!(clip["stride"], 2, "{clip}");
     assert_eq!(clip["frames_used"], 40, "{clip}");
+    // The clip's compression, judged from its coded bits per pixel (the same number as the
+    // upload's), in the parameters and as a level in the quality.
+    let bpp = clip["video"]["bits_per_pixel"].as_f64().unwrap_or(f64::NAN);
+    assert_eq!(
+        clip["compression"]["bits_per_pixel"].as_f64(),
+        Some(bpp),
+        "{clip}"
+    );
+    let level = judge_compression(bpp).level;
+    assert_eq!(clip["compression"]["level"], json!(level), "{clip}");
+    assert_eq!(doc["quality"]["clip_compression"], json!(level), "{doc}");
+    assert_eq!(
+        clip["compression"]["warning"].is_string(),
+        level != CompressionLevel::Light,
+        "{clip}"
+    );
     let times = dso::read_times(&artifact_text(&s, &id, "times.txt").await).expect("times.txt");
     assert_eq!(times.len(), 40);
     assert_eq!(times[1].id, "000002");
@@ -391,6 +409,8 @@ async fn photometric_online_fits_one_response_per_colour_channel() {
     let done = s.wait_terminal(&id).await;
     assert_eq!(done["status"], "succeeded", "{done}");
     let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    // Frames, not a clip: no compression to judge.
+    assert!(doc["quality"]["clip_compression"].is_null(), "{doc}");
     let channels = doc["parameters"]["channel_responses"]
         .as_array()
         .expect("channel_responses");

@@ -115,6 +115,11 @@ pub struct VideoInfo {
     /// changes only as quantised residuals (the README's photometric limits).
     #[serde(default)]
     pub bits_per_pixel: f64,
+    /// What the stream says about its sample range: `true` full (0–255; Motion-JPEG, whose
+    /// frames are JFIF, and H.264 that signals `video_full_range_flag`), `false` limited
+    /// (16–235, signalled), `null` when the stream does not say (H.264 then means limited).
+    #[serde(default)]
+    pub full_range: Option<bool>,
 }
 
 /// Describes a clip from its index, whatever the codec; checks only the limits needed to
@@ -228,5 +233,9 @@ fn info_of(track: &demux::Track) -> VideoInfo {
         frames_in_file,
         truncated: frames_in_file < n,
         bits_per_pixel,
+        full_range: match &track.codec {
+            Codec::Mjpeg { .. } => Some(true),
+            _ => track.avcc.as_ref().and_then(h264::full_range),
+        },
     }
 }

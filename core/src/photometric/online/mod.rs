@@ -33,6 +33,7 @@
 
 mod center;
 mod channels;
+mod compression;
 #[cfg(test)]
 mod diag_tests;
 #[cfg(test)]
@@ -50,6 +51,7 @@ mod vig_model;
 
 pub use center::{CenterMode, CenterReport};
 pub use channels::{ChannelResponse, Channels, photometric_online_rgb};
+pub use compression::{CompressionLevel, CompressionNote, judge_compression};
 pub use levels::MeasuredLevels;
 
 use serde::{Deserialize, Serialize};

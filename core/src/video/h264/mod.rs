@@ -2,6 +2,7 @@
 //! with OpenH264 (pictures tagged with the sample they came from; see [`ffi`]).
 
 mod ffi;
+mod sps;
 
 pub(crate) use ffi::{Picture, RawDecoder};
 use mp4_atom::Avcc;
@@ -23,6 +24,13 @@ fn profile_name(profile_idc: u8, compat: u8) -> Result<&'static str, &'static st
         44 => Err("H.264 CAVLC 4:4:4 Intra"),
         _ => Err("H.264 with an unknown profile"),
     }
+}
+
+/// What the first SPS of `avcc` says about the sample range (see [`sps::video_full_range`]).
+pub(crate) fn full_range(avcc: &Avcc) -> Option<bool> {
+    avcc.sequence_parameter_sets
+        .first()
+        .and_then(|nal| sps::video_full_range(nal))
 }
 
 /// The codec of an `avc1`/`avc3` sample entry.

@@ -10,7 +10,7 @@
 
 use caliper_core::Progress;
 use caliper_core::io::Gray;
-use caliper_core::photometric::PhotoImage;
+use caliper_core::photometric::{CompressionNote, PhotoImage, judge_compression};
 use caliper_core::video::{FrameFormat, FrameOptions, FrameReader, VideoError, VideoLimits};
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
@@ -26,9 +26,12 @@ pub const PIXEL_BUDGET: u64 = 64_000_000;
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum LumaRange {
+    /// What the clip says (`video.full_range`): full for Motion-JPEG and for H.264 that
+    /// signals it, limited otherwise (the H.264 default).
+    #[default]
+    Auto,
     /// Black at 16, white at 235 (ITU-R BT.601/709 "video" range: the H.264 default and what
     /// cameras and ffmpeg write unless told otherwise).
-    #[default]
     Limited,
     /// Black at 0, white at 255 (JPEG range, e.g. some phone and screen recordings).
     Full,
@@ -40,9 +43,10 @@ pub enum LumaRange {
 pub struct ClipFrames {
     /// Most frames fitted (default 200), spread evenly over the clip.
     pub max_frames: usize,
-    /// Range of the coded luma (default `limited`): limited-range samples are expanded to
-    /// full range (as a player shows them) before the fit, so that the response starts at
-    /// black; they are kept at 16 bits so that no level is lost to rounding.
+    /// Range of the coded luma (default `auto`: what the clip signals, limited when it says
+    /// nothing): limited-range samples are expanded to full range (as a player shows them)
+    /// before the fit, so that the response starts at black; they are kept at 16 bits so that
+    /// no level is lost to rounding.
     pub luma_range: LumaRange,
     /// Only frames presented within `[start, end]` seconds (default: the whole clip).
     pub time_range: Option<[f64; 2]>,
@@ -52,9 +56,19 @@ impl Default for ClipFrames {
     fn default() -> Self {
         Self {
             max_frames: 200,
-            luma_range: LumaRange::Limited,
+            luma_range: LumaRange::Auto,
             time_range: None,
         }
+    }
+}
+
+/// The range the frames are read in: the asked one, or for `auto` what the clip signals
+/// (`None`: nothing, so H.264's default, limited).
+fn resolve_range(asked: LumaRange, signalled: Option<bool>) -> LumaRange {
+    match (asked, signalled) {
+        (LumaRange::Auto, Some(true)) => LumaRange::Full,
+        (LumaRange::Auto, _) => LumaRange::Limited,
+        (r, _) => r,
     }
 }
 
@@ -66,7 +80,9 @@ fn photo_image(width: u32, height: u32, luma: Vec<u8>, range: LumaRange) -> Phot
             height,
             data: luma,
         }),
-        LumaRange::Limited => PhotoImage::from_limited_luma(width as usize, height as usize, &luma),
+        LumaRange::Limited | LumaRange::Auto => {
+            PhotoImage::from_limited_luma(width as usize, height as usize, &luma)
+        }
     }
 }
 
@@ -92,6 +108,8 @@ pub(super) struct ClipSequence {
     pub images: Vec<PhotoImage>,
     pub frames: Vec<(u64, f64)>,
     pub summary: Value,
+    /// How hard the clip was compressed, for the fit (also in `summary`).
+    pub compression: CompressionNote,
 }
 
 /// Decodes the kept frames of the clip `f`.
@@ -122,6 +140,7 @@ pub(super) fn clip_sequence(
         time_range: params.time_range.map(|[a, b]| (a, b)),
         ..FrameOptions::default()
     };
+    let range = resolve_range(params.luma_range, info.full_range);
     let mut reader = FrameReader::open(clip.reader()?, &limits, options).map_err(video_error)?;
     let (mut images, mut frames, mut issues) = (Vec::new(), Vec::new(), Vec::new());
     while let Some(next) = reader.next_frame() {
@@ -136,7 +155,7 @@ pub(super) fn clip_sequence(
         };
         let g = frame.image.into_luma();
         let (width, height) = g.dimensions();
-        images.push(photo_image(width, height, g.into_raw(), params.luma_range));
+        images.push(photo_image(width, height, g.into_raw(), range));
         frames.push((frame.index, frame.pts_s));
         progress.report("decode", frames.len() as u64, keep);
     }
@@ -154,8 +173,19 @@ pub(super) fn clip_sequence(
             ),
         });
     }
+    let compression = judge_compression(info.bits_per_pixel);
     let summary = json!({
         "video": info,
+        "compression": compression,
+        // The range the luma was read in, and whether the clip or the request chose it.
+        "luma_range": {
+            "range": range,
+            "from": match params.luma_range {
+                LumaRange::Auto if info.full_range.is_some() => "clip",
+                LumaRange::Auto => "default",
+                _ => "params",
+            },
+        },
         "stride": stride,
         "frames_used": frames.len(),
         "limited_by": if by_budget < params.max_frames as u64 { "pixel_budget" } else { "max_frames" },
@@ -166,5 +196,26 @@ pub(super) fn clip_sequence(
         images,
         frames,
         summary,
+        compression,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn auto_follows_the_clip_and_an_asked_range_wins() {
+        assert_eq!(resolve_range(LumaRange::Auto, Some(true)), LumaRange::Full);
+        assert_eq!(
+            resolve_range(LumaRange::Auto, Some(false)),
+            LumaRange::Limited
+        );
+        assert_eq!(resolve_range(LumaRange::Auto, None), LumaRange::Limited);
+        assert_eq!(
+            resolve_range(LumaRange::Limited, Some(true)),
+            LumaRange::Limited
+        );
+        assert_eq!(resolve_range(LumaRange::Full, None), LumaRange::Full);
+    }
 }
