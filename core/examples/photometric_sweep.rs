@@ -745,15 +745,21 @@ fn clip_frames(path: &Path) -> Result<Vec<PhotoImage>, String> {
         options,
     )
     .map_err(|e| e.to_string())?;
+    // The range the clip signals, as the service's `luma_range: auto` reads it.
+    let full = reader.info().full_range == Some(true);
     let mut out = Vec::new();
     while let Some(frame) = reader.next_frame() {
         let g = frame.map_err(|e| e.to_string())?.image.into_luma();
         let (w, h) = g.dimensions();
-        out.push(PhotoImage::from_limited_luma(
-            w as usize,
-            h as usize,
-            g.as_raw(),
-        ));
+        out.push(if full {
+            PhotoImage::from_gray(&caliper_core::io::Gray {
+                width: w,
+                height: h,
+                data: g.into_raw(),
+            })
+        } else {
+            PhotoImage::from_limited_luma(w as usize, h as usize, g.as_raw())
+        });
     }
     Ok(out)
 }

@@ -333,7 +333,7 @@ async fn photometric_online_fits_an_auto_exposure_clip() {
         Some(bpp),
         "{clip}"
     );
-    let level = judge_compression(bpp).level;
+    let level = judge_compression(bpp, false).level;
     assert_eq!(clip["compression"]["level"], json!(level), "{clip}");
     assert_eq!(doc["quality"]["clip_compression"], json!(level), "{doc}");
     assert_eq!(
@@ -362,6 +362,60 @@ async fn photometric_online_fits_an_auto_exposure_clip() {
         .await;
     assert_eq!(st, 422, "{body}");
     assert_eq!(body["field"], "params.clip.max_frames", "{body}");
+    s.stop().await;
+}
+
+/// A Motion-JPEG clip (what USB cameras deliver): its samples are full range, and the default
+/// `luma_range: auto` reads them so; taken as limited range, the darkest and brightest levels
+/// would be clipped and the exposures come out far off.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn photometric_online_reads_a_motion_jpeg_clip_in_full_range() {
+    let cam = SynthCamera::reference(160, 120, 11);
+    let seq = render_ae_sequence(&cam, 60);
+    let frames: Vec<image::GrayImage> = seq
+        .frames
+        .iter()
+        .map(|f| {
+            image::GrayImage::from_raw(
+                f.width as u32,
+                f.height as u32,
+                f.data.iter().map(|&v| v as u8).collect(),
+            )
+            .expect("frame")
+        })
+        .collect();
+    let mov = caliper_core::video::encode_mjpeg_mov(&frames, 20.0, 95).expect("encode");
+    let s = start().await;
+    let (st, ds, _) = s.upload(vec![("ae.mov", mov)]).await;
+    assert_eq!(st, 201, "{ds}");
+    assert_eq!(ds["files"][0]["video"]["full_range"], true, "{ds}");
+    let id = s
+        .job(json!({"kind": "photometric_online", "dataset": ds["id"]}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let (_, doc) = s.get_json(&format!("/v1/jobs/{id}/result")).await;
+    let clip = &doc["parameters"]["clip"];
+    assert_eq!(
+        clip["luma_range"],
+        json!({"range": "full", "from": "clip"}),
+        "{clip}"
+    );
+    // Every frame of a Motion-JPEG clip is coded alone: judged on the intra-only scale.
+    let bpp = clip["video"]["bits_per_pixel"].as_f64().unwrap_or(f64::NAN);
+    assert_eq!(
+        clip["compression"]["level"],
+        json!(judge_compression(bpp, true).level),
+        "{clip}"
+    );
+    let times = dso::read_times(&artifact_text(&s, &id, "times.txt").await).expect("times.txt");
+    assert_eq!(times.len(), 60);
+    let inv = dso::read_pcalib(&artifact_text(&s, &id, "pcalib.txt").await).expect("pcalib");
+    let (alpha, resp_rmse) = metrics::gamma_align(&inv, &cam.response.inverse(256));
+    assert!(resp_rmse < 0.03, "response RMSE {resp_rmse} (α {alpha})");
+    let fit: Vec<f64> = times.iter().map(|e| e.exposure_ms).collect();
+    let exp_err = metrics::exposure_error_pct(&fit, &seq.exposures, alpha);
+    assert!(exp_err < 8.0, "exposure RMS error {exp_err} %");
     s.stop().await;
 }
 

@@ -33,7 +33,10 @@ pub use error::VideoError;
 pub use limits::VideoLimits;
 pub(crate) use overlap::overlap_batches;
 pub use reader::{DecodeIssue, Frame, FrameFormat, FrameImage, FrameOptions, FrameReader};
-pub use writer::{EncodableImage, WriterOptions, encode_h264_mp4, encode_h264_mp4_with};
+pub use writer::{
+    EncodableImage, JpegSource, WriterOptions, encode_h264_mp4, encode_h264_mp4_with,
+    encode_mjpeg_mov,
+};
 
 /// The container format of a clip.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -79,6 +79,59 @@ fn round_trip_gray_clip() {
     assert!(frames[0].keyframe);
 }
 
+/// A Motion-JPEG clip: every frame a keyframe, its samples full range (JFIF), decoded close to
+/// the source with black and white kept; an H.264 clip from the writer says nothing of its
+/// range.
+#[test]
+fn mjpeg_clip_is_intra_and_full_range() {
+    let src: Vec<GrayImage> = (0..12)
+        .map(|t| {
+            let mut g = pattern(96, 64, t);
+            // Black and white patches: a limited-range reading would move them.
+            for y in 0..8 {
+                for x in 0..8 {
+                    g.put_pixel(x, y, Luma([0]));
+                    g.put_pixel(95 - x, y, Luma([255]));
+                }
+            }
+            g
+        })
+        .collect();
+    let clip = encode_mjpeg_mov(&src, 30.0, 95).unwrap();
+    let info = probe(Cursor::new(&clip), &VideoLimits::default()).unwrap();
+    assert!(
+        matches!(info.codec, Codec::Mjpeg { .. }),
+        "{:?}",
+        info.codec
+    );
+    assert_eq!((info.frame_count, info.keyframe_count), (12, 12));
+    assert_eq!(info.full_range, Some(true));
+    assert!(info.bits_per_pixel > 0.0);
+    let (frames, err) = luma_frames(&clip, FrameOptions::default());
+    assert!(err.is_none(), "{err:?}");
+    assert_eq!(frames.len(), 12);
+    for (i, f) in frames.iter().enumerate() {
+        let FrameImage::Luma(img) = &f.image else {
+            panic!("luma expected")
+        };
+        let p = psnr(img, &src[i]);
+        assert!(p > 35.0, "frame {i}: PSNR {p:.1}");
+        assert!(
+            img.get_pixel(3, 3)[0] <= 4,
+            "black {}",
+            img.get_pixel(3, 3)[0]
+        );
+        assert!(
+            img.get_pixel(92, 3)[0] >= 251,
+            "white {}",
+            img.get_pixel(92, 3)[0]
+        );
+    }
+    let h264 = encode_h264_mp4(&src, 30.0).unwrap();
+    let info = probe(Cursor::new(&h264), &VideoLimits::default()).unwrap();
+    assert_ne!(info.full_range, Some(true));
+}
+
 /// A clip coded at a lower bitrate reports fewer bits per pixel.
 #[test]
 fn bits_per_pixel_follow_the_bitrate() {

@@ -106,27 +106,7 @@ pub fn encode_h264_mp4_with<I: EncodableImage>(
     options: &WriterOptions,
 ) -> Result<Vec<u8>, VideoError> {
     let err = VideoError::Encode;
-    let first = frames.first().ok_or_else(|| err("no frames".into()))?;
-    let (w, h) = first.size();
-    if w == 0
-        || h == 0
-        || !w.is_multiple_of(2)
-        || !h.is_multiple_of(2)
-        || w > u32::from(u16::MAX)
-        || h > u32::from(u16::MAX)
-    {
-        return Err(err(format!(
-            "frames of {w}x{h}: width and height must be even and non-zero"
-        )));
-    }
-    if !(fps > 0.0 && fps <= 1000.0) {
-        return Err(err(format!("frame rate {fps} is not in (0, 1000]")));
-    }
-    let matrix = matrix_for(options.rotation_deg)
-        .ok_or_else(|| err("rotation must be 0, 90, 180 or 270".into()))?;
-    // Time base: 1/1000 of a frame is exact for integer rates and close for NTSC ones.
-    let timescale: u32 = (fps * 1000.0).round() as u32;
-    let delta: u32 = 1000;
+    let (w, h) = check_frames(frames, fps)?;
     let bitrate = if options.bitrate > 0 {
         options.bitrate
     } else {
@@ -148,12 +128,6 @@ pub fn encode_h264_mp4_with<I: EncodableImage>(
     let mut keyframes = Vec::new();
     let mut annex_b = Vec::new();
     for (i, frame) in frames.iter().enumerate() {
-        if frame.size() != (w, h) {
-            return Err(err(format!(
-                "frame {i} is {:?}, the first {w}x{h}",
-                frame.size()
-            )));
-        }
         frame.to_i420(&mut yuv);
         let source = YUVBuffer::from_vec(yuv.clone(), w as usize, h as usize);
         let bits = encoder.encode(&source).map_err(|e| err(e.to_string()))?;
@@ -191,8 +165,156 @@ pub fn encode_h264_mp4_with<I: EncodableImage>(
         return Err(err("the encoder produced no parameter sets".into()));
     };
     let avcc = Avcc::new(&sps, &pps).map_err(|e| err(e.to_string()))?;
+    let entry = Avc1 {
+        visual: Visual {
+            data_reference_index: 1,
+            width: w as u16,
+            height: h as u16,
+            ..Default::default()
+        },
+        avcc,
+        ..Default::default()
+    }
+    .into();
+    let track = Samples {
+        width: w,
+        height: h,
+        fps,
+        rotation_deg: options.rotation_deg,
+        sizes,
+        keyframes: Some(keyframes),
+        data,
+    };
+    mux(entry, track)
+}
 
-    let n = frames.len() as u32;
+/// Encodes `frames` at `fps` as a QuickTime Motion-JPEG clip (`jpeg` sample entry, every frame
+/// a baseline JFIF image at `quality` 1–100), entirely in memory: what USB cameras deliver.
+pub fn encode_mjpeg_mov<I: EncodableImage + JpegSource>(
+    frames: &[I],
+    fps: f64,
+    quality: u8,
+) -> Result<Vec<u8>, VideoError> {
+    let err = VideoError::Encode;
+    let (w, h) = check_frames(frames, fps)?;
+    let mut data = Vec::new();
+    let mut sizes = Vec::with_capacity(frames.len());
+    for frame in frames {
+        let start = data.len();
+        let mut enc =
+            image::codecs::jpeg::JpegEncoder::new_with_quality(&mut data, quality.clamp(1, 100));
+        frame.write_jpeg(&mut enc).map_err(|e| err(e.to_string()))?;
+        sizes.push((data.len() - start) as u32);
+    }
+    let entry = mp4_atom::Jpeg {
+        visual: Visual {
+            data_reference_index: 1,
+            width: w as u16,
+            height: h as u16,
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+    .into();
+    let track = Samples {
+        width: w,
+        height: h,
+        fps,
+        rotation_deg: 0,
+        sizes,
+        keyframes: None,
+        data,
+    };
+    mux(entry, track)
+}
+
+/// A picture the Motion-JPEG writer can compress.
+pub trait JpegSource {
+    /// Writes the picture as one JPEG image.
+    fn write_jpeg(
+        &self,
+        enc: &mut image::codecs::jpeg::JpegEncoder<&mut Vec<u8>>,
+    ) -> image::ImageResult<()>;
+}
+
+impl JpegSource for GrayImage {
+    fn write_jpeg(
+        &self,
+        enc: &mut image::codecs::jpeg::JpegEncoder<&mut Vec<u8>>,
+    ) -> image::ImageResult<()> {
+        enc.encode_image(self)
+    }
+}
+
+impl JpegSource for RgbImage {
+    fn write_jpeg(
+        &self,
+        enc: &mut image::codecs::jpeg::JpegEncoder<&mut Vec<u8>>,
+    ) -> image::ImageResult<()> {
+        enc.encode_image(self)
+    }
+}
+
+/// Checks that `frames` share one even, non-zero size and that `fps` is usable; the size.
+fn check_frames<I: EncodableImage>(frames: &[I], fps: f64) -> Result<(u32, u32), VideoError> {
+    let err = VideoError::Encode;
+    let first = frames.first().ok_or_else(|| err("no frames".into()))?;
+    let (w, h) = first.size();
+    if w == 0
+        || h == 0
+        || !w.is_multiple_of(2)
+        || !h.is_multiple_of(2)
+        || w > u32::from(u16::MAX)
+        || h > u32::from(u16::MAX)
+    {
+        return Err(err(format!(
+            "frames of {w}x{h}: width and height must be even and non-zero"
+        )));
+    }
+    if !(fps > 0.0 && fps <= 1000.0) {
+        return Err(err(format!("frame rate {fps} is not in (0, 1000]")));
+    }
+    if let Some((i, f)) = frames.iter().enumerate().find(|(_, f)| f.size() != (w, h)) {
+        return Err(err(format!(
+            "frame {i} is {:?}, the first {w}x{h}",
+            f.size()
+        )));
+    }
+    Ok((w, h))
+}
+
+/// The coded frames of one video track, in decode order.
+struct Samples {
+    width: u32,
+    height: u32,
+    fps: f64,
+    rotation_deg: u16,
+    /// Bytes of each frame in `data`.
+    sizes: Vec<u32>,
+    /// 1-based sync samples (`None`: every frame is one).
+    keyframes: Option<Vec<u32>>,
+    data: Vec<u8>,
+}
+
+/// Writes one video track with the sample entry `entry` as an MP4/QuickTime file: `ftyp`,
+/// `moov`, then one `mdat` chunk holding every frame.
+fn mux(entry: mp4_atom::Codec, track: Samples) -> Result<Vec<u8>, VideoError> {
+    let err = VideoError::Encode;
+    let Samples {
+        width: w,
+        height: h,
+        fps,
+        rotation_deg,
+        sizes,
+        keyframes,
+        data,
+    } = track;
+    let matrix =
+        matrix_for(rotation_deg).ok_or_else(|| err("rotation must be 0, 90, 180 or 270".into()))?;
+    // Time base: 1/1000 of a frame is exact for integer rates and close for NTSC ones.
+    let timescale: u32 = (fps * 1000.0).round() as u32;
+    let delta: u32 = 1000;
+    let n = sizes.len() as u32;
     let ftyp = Ftyp {
         major_brand: FourCC::new(b"isom"),
         minor_version: 512,
@@ -245,19 +367,7 @@ pub fn encode_h264_mp4_with<I: EncodableImage>(
                     },
                     stbl: Stbl {
                         stsd: Stsd {
-                            codecs: vec![
-                                Avc1 {
-                                    visual: Visual {
-                                        data_reference_index: 1,
-                                        width: w as u16,
-                                        height: h as u16,
-                                        ..Default::default()
-                                    },
-                                    avcc,
-                                    ..Default::default()
-                                }
-                                .into(),
-                            ],
+                            codecs: vec![entry],
                         },
                         stts: Stts {
                             entries: vec![SttsEntry {
@@ -265,7 +375,7 @@ pub fn encode_h264_mp4_with<I: EncodableImage>(
                                 sample_delta: delta,
                             }],
                         },
-                        stss: Some(Stss { entries: keyframes }),
+                        stss: keyframes.map(|entries| Stss { entries }),
                         stsc: Stsc {
                             entries: vec![StscEntry {
                                 first_chunk: 1,

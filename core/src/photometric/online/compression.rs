@@ -10,33 +10,54 @@
 //! (`VideoInfo::bits_per_pixel`); the levels below come from its tuning splits and were then
 //! checked once on a held-out split (see the example's header).
 //!
+//! A clip whose every frame is coded alone (Motion-JPEG from USB cameras, all-intra H.264)
+//! needs several times the bits: with x264 coding every frame as a keyframe at rate factor 23
+//! (0.26–0.33 bits per pixel) the tuning sequences' exposures were 2.3 % off at the median,
+//! worse than with predicted frames at a quarter of the rate (2.0 % at 0.06–0.16), since each
+//! frame's quantisation error is new; such clips are judged on [`INTRA_LEVELS`].
+//!
 //! Bits per pixel is a proxy: the same rate buys more on a smooth, slowly moving scene than on
 //! a detailed, fast one, and hardware encoders spend bits less well than x264. The judgement is
 //! therefore a warning with the measured numbers, not a refusal.
 
 use serde::{Deserialize, Serialize};
 
-/// At or above this many coded bits per pixel and frame, compression costs the fit little
-/// (x264 at rate factor 14 and below in the sweep).
-pub const LIGHT_BITS_PER_PIXEL: f64 = 0.5;
+/// Where a clip's bits per pixel and frame stop costing the fit little (at or above `light`)
+/// and start costing it its targets (below `heavy`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RateLevels {
+    /// At or above: compression costs the fit little.
+    pub light: f64,
+    /// Below: the exposures miss the 2 % target on most sequences.
+    pub heavy: f64,
+}
 
-/// Below this many coded bits per pixel and frame, the sweep's exposures miss the 2 % target
-/// on most sequences (x264's default rate factor 23 lands here on 320×240 scenes).
-pub const HEAVY_BITS_PER_PIXEL: f64 = 0.15;
+/// Clips with predicted frames (H.264 as cameras and phones write it): x264 at rate factor 14
+/// and below lands above `light` in the sweep, its default rate factor 23 below `heavy`.
+pub const PREDICTED_LEVELS: RateLevels = RateLevels {
+    light: 0.5,
+    heavy: 0.15,
+};
+
+/// Clips whose every frame is coded alone (Motion-JPEG, all-intra H.264): each frame pays for
+/// its whole picture, so the same accuracy needs several times the bits.
+pub const INTRA_LEVELS: RateLevels = RateLevels {
+    light: 1.0,
+    heavy: 0.5,
+};
 
 /// How hard a clip was compressed, for the photometric fit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 pub enum CompressionLevel {
-    /// At least [`LIGHT_BITS_PER_PIXEL`]: errors within about twice those of the frames
-    /// themselves.
+    /// At least the `light` rate: errors within about twice those of the frames themselves.
     Light,
     /// Between the two levels: the response and vignetting usually within the targets,
     /// exposures about 1 % off.
     Moderate,
-    /// Below [`HEAVY_BITS_PER_PIXEL`]: exposures typically 2–5 % off, the response and
-    /// vignetting often outside the targets.
+    /// Below the `heavy` rate: exposures typically 2–5 % off, the response and vignetting
+    /// often outside the targets.
     Heavy,
 }
 
@@ -46,42 +67,59 @@ pub enum CompressionLevel {
 pub struct CompressionNote {
     /// Coded bits per pixel and frame of the clip.
     pub bits_per_pixel: f64,
+    /// Whether every frame is coded alone (judged on [`INTRA_LEVELS`], else
+    /// [`PREDICTED_LEVELS`]).
+    pub intra_only: bool,
     /// How hard that is for the fit.
     pub level: CompressionLevel,
     /// What to expect and what to do, for `moderate` and `heavy`.
     pub warning: Option<String>,
 }
 
-/// Judges a clip coded with `bits_per_pixel` bits per pixel and frame. A value that is not a
-/// positive finite number (an index without sample sizes) is judged heavy, since nothing says
-/// otherwise.
-pub fn judge_compression(bits_per_pixel: f64) -> CompressionNote {
+/// Judges a clip coded with `bits_per_pixel` bits per pixel and frame, `intra_only` when every
+/// frame is a keyframe. A value that is not a positive finite number (an index without sample
+/// sizes) is judged heavy, since nothing says otherwise.
+pub fn judge_compression(bits_per_pixel: f64, intra_only: bool) -> CompressionNote {
+    let at = if intra_only {
+        INTRA_LEVELS
+    } else {
+        PREDICTED_LEVELS
+    };
     let level = if !(bits_per_pixel.is_finite() && bits_per_pixel > 0.0) {
         CompressionLevel::Heavy
-    } else if bits_per_pixel >= LIGHT_BITS_PER_PIXEL {
+    } else if bits_per_pixel >= at.light {
         CompressionLevel::Light
-    } else if bits_per_pixel >= HEAVY_BITS_PER_PIXEL {
+    } else if bits_per_pixel >= at.heavy {
         CompressionLevel::Moderate
     } else {
         CompressionLevel::Heavy
     };
+    let what = if intra_only {
+        "every frame coded alone"
+    } else {
+        "with predicted frames"
+    };
+    let advice = format!(
+        "record at a higher bit rate (≥ {} bits per pixel for such a clip) or upload the frames \
+         as images",
+        at.light
+    );
     let warning = match level {
         CompressionLevel::Light => None,
         CompressionLevel::Moderate => Some(format!(
-            "the clip is coded with {bits_per_pixel:.2} bits per pixel: compression typically \
-             puts the exposures about 1 % off and doubles the response error; record at a \
-             higher bit rate (≥ {LIGHT_BITS_PER_PIXEL} bits per pixel) or upload the frames as \
-             images for the best fit"
+            "the clip is coded with {bits_per_pixel:.2} bits per pixel ({what}): compression \
+             typically puts the exposures about 1 % off and doubles the response error; for the \
+             best fit {advice}"
         )),
         CompressionLevel::Heavy => Some(format!(
-            "the clip is coded with {bits_per_pixel:.2} bits per pixel: at this compression the \
-             exposures are typically 2–5 % off and the response and vignetting can miss their \
-             accuracy; record at a higher bit rate (≥ {LIGHT_BITS_PER_PIXEL} bits per pixel) or \
-             upload the frames as images"
+            "the clip is coded with {bits_per_pixel:.2} bits per pixel ({what}): at this \
+             compression the exposures are typically 2–5 % off and the response and vignetting \
+             can miss their accuracy; {advice}"
         )),
     };
     CompressionNote {
         bits_per_pixel,
+        intra_only,
         level,
         warning,
     }
@@ -93,27 +131,52 @@ mod tests {
 
     #[test]
     fn levels_follow_the_rate_and_bad_values_are_heavy() {
-        assert_eq!(judge_compression(2.0).level, CompressionLevel::Light);
-        assert!(judge_compression(2.0).warning.is_none());
-        let m = judge_compression(0.3);
+        assert_eq!(judge_compression(2.0, false).level, CompressionLevel::Light);
+        assert!(judge_compression(2.0, false).warning.is_none());
+        let m = judge_compression(0.3, false);
         assert_eq!(m.level, CompressionLevel::Moderate);
         assert!(m.warning.as_deref().is_some_and(|w| w.contains("0.30")));
-        assert_eq!(judge_compression(0.05).level, CompressionLevel::Heavy);
+        assert_eq!(
+            judge_compression(0.05, false).level,
+            CompressionLevel::Heavy
+        );
         for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
             assert_eq!(
-                judge_compression(bad).level,
+                judge_compression(bad, false).level,
                 CompressionLevel::Heavy,
                 "{bad}"
             );
         }
         // The boundaries belong to the better level.
+        for (intra, at) in [(false, PREDICTED_LEVELS), (true, INTRA_LEVELS)] {
+            assert_eq!(
+                judge_compression(at.light, intra).level,
+                CompressionLevel::Light
+            );
+            assert_eq!(
+                judge_compression(at.heavy, intra).level,
+                CompressionLevel::Moderate
+            );
+        }
+    }
+
+    #[test]
+    fn intra_only_clips_need_more_bits() {
+        // A rate that is light with predicted frames is not when every frame is coded alone.
+        let rate = PREDICTED_LEVELS.light;
         assert_eq!(
-            judge_compression(LIGHT_BITS_PER_PIXEL).level,
+            judge_compression(rate, false).level,
             CompressionLevel::Light
         );
-        assert_eq!(
-            judge_compression(HEAVY_BITS_PER_PIXEL).level,
-            CompressionLevel::Moderate
+        assert_ne!(judge_compression(rate, true).level, CompressionLevel::Light);
+        assert!(INTRA_LEVELS.light > PREDICTED_LEVELS.light);
+        assert!(INTRA_LEVELS.heavy > PREDICTED_LEVELS.heavy);
+        let note = judge_compression(rate, true);
+        assert!(note.intra_only);
+        assert!(
+            note.warning
+                .as_deref()
+                .is_some_and(|w| w.contains("coded alone"))
         );
     }
 }

@@ -196,11 +196,7 @@ impl Sampler {
     fn sample(&mut self, l0: &Level, k: usize, id: usize, c: [f32; 2], warp: Similarity) {
         let w = self.w;
         for (o, off) in OFFSETS[..self.n_off].iter().enumerate() {
-            let sc: f32 = std::env::var("DIAG_OFF")
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(1.0);
-            let [ox, oy] = warp.apply([off[0] * sc, off[1] * sc]);
+            let [ox, oy] = warp.apply(*off);
             let (x, y) = (c[0] + ox, c[1] + oy);
             let (Some(v), Some(gx), Some(gy)) = (
                 l0.sample(VALUE, x, y),
@@ -232,11 +228,7 @@ impl Sampler {
                 }
                 _ => continue,
             };
-            let gh: f32 = std::env::var("DIAG_GH")
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(GRAD_HALF_WEIGHT);
-            let g2 = (gx * gx + gy * gy) / (gh * gh);
+            let g2 = (gx * gx + gy * gy) / (GRAD_HALF_WEIGHT * GRAD_HALF_WEIGHT);
             self.pos.push([x, y]);
             self.obs.push(Obs {
                 point: (id * self.n_off + o) as u32,

@@ -173,7 +173,9 @@ pub(super) fn clip_sequence(
             ),
         });
     }
-    let compression = judge_compression(info.bits_per_pixel);
+    // Every frame a keyframe: Motion-JPEG or all-intra H.264, judged on the intra scale.
+    let compression =
+        judge_compression(info.bits_per_pixel, info.keyframe_count >= info.frame_count);
     let summary = json!({
         "video": info,
         "compression": compression,
