@@ -93,6 +93,25 @@
 //! common scale; `SWEEP_FRAMES=1 SWEEP_ALL=1`): the predicted frames' quantised residuals
 //! understate small brightness changes.
 //!
+//! Compression over the sweep's own cases (2026-12-06, fourth session; nothing in the fit
+//! changed). `SWEEP_CRF=N` encodes every rendered case with x264 (High, yuv420p, 20 fps,
+//! rate factor N, `SWEEP_X264` extra options) through `ffmpeg` and fits the decoded clip;
+//! `SWEEP_CRF=mjpeg:Q` writes Motion-JPEG at ffmpeg quality Q. Cases within the three accuracy
+//! targets of 12 (medians response / vignette / exposure): `tuning` as frames 10 (0.0014 /
+//! 0.0011 / 0.30 %), CRF 14 11 (0.0022 / 0.0017 / 0.71 %), 18 10 (0.0020 / 0.0023 / 1.02 %), 23
+//! 5 (0.0054 / 0.0063 / 2.02 %), 28 0 (0.0058 / 0.0146 / 2.67 %); `soft` as frames 11 (0.39 %),
+//! CRF 14 11 (0.59 %), 18 11 (0.91 %), 23 1.46 % and 28 2.73 % at the median. By the clip's bits
+//! per pixel over both splits (96 clips): ≥ 0.5 19 of 22 (exposure 0.67 %), 0.15–0.5 24 of 27
+//! (0.95 %), below 0.15 12 of 47 (2.4 %) — the levels of `online/compression.rs`. Diagnosis on
+//! `tuning` at CRF 23 (5 of 12): without B-frames (`SWEEP_X264='-bf 0'`) 6 (1.39 %); every frame
+//! intra (`-g 1`, 0.26–0.33 bits per pixel) 3 (2.31 %): independent quantisation in every frame
+//! costs more than prediction does; gradient weight halving at 0.01 instead of 0.03 6 (2.09 %);
+//! samples at ±4 px instead of ±2 7 (1.61 %) but as frames 11 with worse medians (0.0017 /
+//! 0.0019 / 0.40 %), so the sampling stays. Motion-JPEG: quality 2 (1.1–1.9 bits per pixel) 9
+//! (0.44 %), 5 (0.6–0.8) 9 (0.46 %), 10 (0.4–0.6) 4 (2.61 %); read as limited range (the
+//! service's default before `luma_range: auto`) `tuning#0` at quality 4 was 11.8 % off, 0.52 %
+//! in full range. HELDOUT_SWEEP
+//!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \
 //!     [tuning|saturated|scripted|lens|scenes|soft|eval|eval2|…|eval9|soft-eval|shared] [cases] [frames] [width] [height]
