@@ -64,7 +64,7 @@
 //!   other split is point-sampled and sharp at the pixel scale, which real cameras are not.
 //! * `soft-eval`: seeds from 15 000, `eval`'s generators through the same soft lens, held out.
 //! * `soft-eval2`: seeds from 16 000, the same again: fixed 2026-12-06 (fourth session's start,
-//!   before any choice) to confirm that session's compression findings once.
+//!   before any choice); used once, to confirm that session's compression levels.
 //!
 //! Soft optics (2026-12-06, third session; nothing in the fit changed). Run once each on the
 //! fit as shipped, 200 frames at 320×240, 2 cores (this machine fits the shared
@@ -110,7 +110,10 @@
 //! 0.0019 / 0.40 %), so the sampling stays. Motion-JPEG: quality 2 (1.1–1.9 bits per pixel) 9
 //! (0.44 %), 5 (0.6–0.8) 9 (0.46 %), 10 (0.4–0.6) 4 (2.61 %); read as limited range (the
 //! service's default before `luma_range: auto`) `tuning#0` at quality 4 was 11.8 % off, 0.52 %
-//! in full range. HELDOUT_SWEEP
+//! in full range. Held out, run once after the levels were set: `soft-eval2` as frames 12 of
+//! 12 (0.0009 / 0.0020 / 0.42 %), CRF 18 9 (0.0011 / 0.0051 / 1.02 %), CRF 23 6 (0.0028 /
+//! 0.0112 / 1.88 %); by level, moderate (0.15–0.29 bits per pixel) 9 of 11 (0.97 %), heavy
+//! (0.05–0.14) 6 of 13 (1.82 %).
 //!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \

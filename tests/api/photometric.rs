@@ -292,14 +292,9 @@ async fn vignetting_of_a_fisheye_uses_the_masked_spline() {
     s.stop().await;
 }
 
-/// An auto-exposure clip (the synthetic sequence encoded as H.264): `photometric_online` fits
-/// it like the frames as images, with the clip's own timestamps in `times.txt`.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn photometric_online_fits_an_auto_exposure_clip() {
-    let cam = SynthCamera::reference(160, 120, 11);
-    let seq = render_ae_sequence(&cam, 80);
-    let frames: Vec<image::GrayImage> = seq
-        .frames
+/// 8-bit rendered frames as grey images, for the clip writers.
+fn gray_frames(frames: &[PhotoImage]) -> Vec<image::GrayImage> {
+    frames
         .iter()
         .map(|f| {
             image::GrayImage::from_raw(
@@ -309,7 +304,16 @@ async fn photometric_online_fits_an_auto_exposure_clip() {
             )
             .expect("frame")
         })
-        .collect();
+        .collect()
+}
+
+/// An auto-exposure clip (the synthetic sequence encoded as H.264): `photometric_online` fits
+/// it like the frames as images, with the clip's own timestamps in `times.txt`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn photometric_online_fits_an_auto_exposure_clip() {
+    let cam = SynthCamera::reference(160, 120, 11);
+    let seq = render_ae_sequence(&cam, 80);
+    let frames = gray_frames(&seq.frames);
     let mp4 = caliper_core::video::encode_h264_mp4(&frames, 20.0).expect("encode");
     let s = start().await;
     let (st, ds, _) = s.upload(vec![("ae.mp4", mp4)]).await;
@@ -372,18 +376,7 @@ async fn photometric_online_fits_an_auto_exposure_clip() {
 async fn photometric_online_reads_a_motion_jpeg_clip_in_full_range() {
     let cam = SynthCamera::reference(160, 120, 11);
     let seq = render_ae_sequence(&cam, 60);
-    let frames: Vec<image::GrayImage> = seq
-        .frames
-        .iter()
-        .map(|f| {
-            image::GrayImage::from_raw(
-                f.width as u32,
-                f.height as u32,
-                f.data.iter().map(|&v| v as u8).collect(),
-            )
-            .expect("frame")
-        })
-        .collect();
+    let frames = gray_frames(&seq.frames);
     let mov = caliper_core::video::encode_mjpeg_mov(&frames, 20.0, 95).expect("encode");
     let s = start().await;
     let (st, ds, _) = s.upload(vec![("ae.mov", mov)]).await;

@@ -166,24 +166,15 @@ pub fn encode_h264_mp4_with<I: EncodableImage>(
     };
     let avcc = Avcc::new(&sps, &pps).map_err(|e| err(e.to_string()))?;
     let entry = Avc1 {
-        visual: Visual {
-            data_reference_index: 1,
-            width: w as u16,
-            height: h as u16,
-            ..Default::default()
-        },
+        visual: visual(w, h),
         avcc,
         ..Default::default()
     }
     .into();
     let track = Samples {
-        width: w,
-        height: h,
-        fps,
         rotation_deg: options.rotation_deg,
-        sizes,
         keyframes: Some(keyframes),
-        data,
+        ..Samples::new((w, h), fps, sizes, data)
     };
     mux(entry, track)
 }
@@ -207,25 +198,11 @@ pub fn encode_mjpeg_mov<I: EncodableImage + JpegSource>(
         sizes.push((data.len() - start) as u32);
     }
     let entry = mp4_atom::Jpeg {
-        visual: Visual {
-            data_reference_index: 1,
-            width: w as u16,
-            height: h as u16,
-            ..Default::default()
-        },
+        visual: visual(w, h),
         ..Default::default()
     }
     .into();
-    let track = Samples {
-        width: w,
-        height: h,
-        fps,
-        rotation_deg: 0,
-        sizes,
-        keyframes: None,
-        data,
-    };
-    mux(entry, track)
+    mux(entry, Samples::new((w, h), fps, sizes, data))
 }
 
 /// A picture the Motion-JPEG writer can compress.
@@ -294,6 +271,31 @@ struct Samples {
     /// 1-based sync samples (`None`: every frame is one).
     keyframes: Option<Vec<u32>>,
     data: Vec<u8>,
+}
+
+impl Samples {
+    /// Frames of `size` at `fps`, upright, every one a sync sample.
+    fn new(size: (u32, u32), fps: f64, sizes: Vec<u32>, data: Vec<u8>) -> Self {
+        Self {
+            width: size.0,
+            height: size.1,
+            fps,
+            rotation_deg: 0,
+            sizes,
+            keyframes: None,
+            data,
+        }
+    }
+}
+
+/// The visual part of a sample entry for `w` × `h` frames.
+fn visual(w: u32, h: u32) -> Visual {
+    Visual {
+        data_reference_index: 1,
+        width: w as u16,
+        height: h as u16,
+        ..Default::default()
+    }
 }
 
 /// Writes one video track with the sample entry `entry` as an MP4/QuickTime file: `ftyp`,
