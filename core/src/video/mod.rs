@@ -34,8 +34,7 @@ pub use limits::VideoLimits;
 pub(crate) use overlap::overlap_batches;
 pub use reader::{DecodeIssue, Frame, FrameFormat, FrameImage, FrameOptions, FrameReader};
 pub use writer::{
-    EncodableImage, JpegSource, WriterOptions, encode_h264_mp4, encode_h264_mp4_with,
-    encode_mjpeg_mov,
+    EncodableImage, WriterOptions, encode_h264_mp4, encode_h264_mp4_with, encode_mjpeg_mov,
 };
 
 /// The container format of a clip.

@@ -181,11 +181,11 @@ pub fn encode_h264_mp4_with<I: EncodableImage>(
 
 /// Encodes `frames` at `fps` as a QuickTime Motion-JPEG clip (`jpeg` sample entry, every frame
 /// a baseline JFIF image at `quality` 1–100), entirely in memory: what USB cameras deliver.
-pub fn encode_mjpeg_mov<I: EncodableImage + JpegSource>(
-    frames: &[I],
-    fps: f64,
-    quality: u8,
-) -> Result<Vec<u8>, VideoError> {
+pub fn encode_mjpeg_mov<I>(frames: &[I], fps: f64, quality: u8) -> Result<Vec<u8>, VideoError>
+where
+    I: EncodableImage + image::GenericImageView,
+    I::Pixel: image::PixelWithColorType,
+{
     let err = VideoError::Encode;
     let (w, h) = check_frames(frames, fps)?;
     let mut data = Vec::new();
@@ -194,7 +194,7 @@ pub fn encode_mjpeg_mov<I: EncodableImage + JpegSource>(
         let start = data.len();
         let mut enc =
             image::codecs::jpeg::JpegEncoder::new_with_quality(&mut data, quality.clamp(1, 100));
-        frame.write_jpeg(&mut enc).map_err(|e| err(e.to_string()))?;
+        enc.encode_image(frame).map_err(|e| err(e.to_string()))?;
         sizes.push((data.len() - start) as u32);
     }
     let entry = mp4_atom::Jpeg {
@@ -203,33 +203,6 @@ pub fn encode_mjpeg_mov<I: EncodableImage + JpegSource>(
     }
     .into();
     mux(entry, Samples::new((w, h), fps, sizes, data))
-}
-
-/// A picture the Motion-JPEG writer can compress.
-pub trait JpegSource {
-    /// Writes the picture as one JPEG image.
-    fn write_jpeg(
-        &self,
-        enc: &mut image::codecs::jpeg::JpegEncoder<&mut Vec<u8>>,
-    ) -> image::ImageResult<()>;
-}
-
-impl JpegSource for GrayImage {
-    fn write_jpeg(
-        &self,
-        enc: &mut image::codecs::jpeg::JpegEncoder<&mut Vec<u8>>,
-    ) -> image::ImageResult<()> {
-        enc.encode_image(self)
-    }
-}
-
-impl JpegSource for RgbImage {
-    fn write_jpeg(
-        &self,
-        enc: &mut image::codecs::jpeg::JpegEncoder<&mut Vec<u8>>,
-    ) -> image::ImageResult<()> {
-        enc.encode_image(self)
-    }
 }
 
 /// Checks that `frames` share one even, non-zero size and that `fps` is usable; the size.
