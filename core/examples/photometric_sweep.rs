@@ -749,12 +749,12 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-/// Every frame of an H.264 clip of the shared frames (`SWEEP_CLIP`, e.g. re-encoded at another
-/// quality with `ffmpeg -framerate 20 -i images/%06d.png -c:v libx264 -crf 23 -pix_fmt yuv420p`),
-/// its limited-range luma expanded to full range as the service's clip path does. Needs the
-/// `video` feature (`--features video`).
+/// Every frame of a clip (`SWEEP_CLIP`, e.g. the shared frames re-encoded at another quality
+/// with `ffmpeg -framerate 20 -i images/%06d.png -c:v libx264 -crf 23 -pix_fmt yuv420p`, or a
+/// `SWEEP_CRF` encode), its luma read in the range the clip signals as the service's clip path
+/// does, and the clip's coded bits per pixel. Needs the `video` feature (`--features video`).
 #[cfg(feature = "video")]
-fn clip_frames(path: &Path) -> Result<Vec<PhotoImage>, String> {
+fn clip_frames(path: &Path) -> Result<(Vec<PhotoImage>, f64), String> {
     use caliper_core::video::{FrameFormat, FrameOptions, FrameReader, VideoLimits};
     let file = std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let options = FrameOptions {
@@ -769,41 +769,24 @@ fn clip_frames(path: &Path) -> Result<Vec<PhotoImage>, String> {
     .map_err(|e| e.to_string())?;
     // The range the clip signals, as the service's `luma_range: auto` reads it.
     let full = reader.info().full_range == Some(true);
+    let bits_per_pixel = reader.info().bits_per_pixel;
     let mut out = Vec::new();
     while let Some(frame) = reader.next_frame() {
         let g = frame.map_err(|e| e.to_string())?.image.into_luma();
         let (w, h) = g.dimensions();
-        out.push(if full {
-            PhotoImage::from_gray(&caliper_core::io::Gray {
-                width: w,
-                height: h,
-                data: g.into_raw(),
-            })
-        } else {
-            PhotoImage::from_limited_luma(w as usize, h as usize, g.as_raw())
-        });
+        out.push(PhotoImage::from_video_luma(
+            w as usize,
+            h as usize,
+            g.into_raw(),
+            full,
+        ));
     }
-    Ok(out)
+    Ok((out, bits_per_pixel))
 }
 
 #[cfg(not(feature = "video"))]
-fn clip_frames(_: &Path) -> Result<Vec<PhotoImage>, String> {
-    Err("SWEEP_CLIP needs the example built with `--features video`".into())
-}
-
-/// A clip's coded bits per pixel and frame, as the upload reports it (`VideoInfo`).
-#[cfg(feature = "video")]
-fn clip_bits_per_pixel(path: &Path) -> Result<f64, String> {
-    use caliper_core::video::{VideoLimits, probe};
-    let file = std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    probe(std::io::BufReader::new(file), &VideoLimits::default())
-        .map(|i| i.bits_per_pixel)
-        .map_err(|e| e.to_string())
-}
-
-#[cfg(not(feature = "video"))]
-fn clip_bits_per_pixel(_: &Path) -> Result<f64, String> {
-    Err("SWEEP_CRF needs the example built with `--features video`".into())
+fn clip_frames(_: &Path) -> Result<(Vec<PhotoImage>, f64), String> {
+    Err("SWEEP_CLIP and SWEEP_CRF need the example built with `--features video`".into())
 }
 
 /// `SWEEP_CRF=N`: a rendered case as a phone or action camera would hand it over, H.264
@@ -875,8 +858,7 @@ fn encode_case(
     if !status.success() {
         return Err(format!("ffmpeg failed: {status}"));
     }
-    let decoded = clip_frames(&out)?;
-    let bpp = clip_bits_per_pixel(&out)?;
+    let (decoded, bpp) = clip_frames(&out)?;
     let _ = std::fs::remove_file(&out);
     Ok((decoded, bpp))
 }
@@ -890,7 +872,7 @@ fn shared(dir: &Path) -> Result<Row, String> {
         .collect();
     paths.sort();
     let frames = match std::env::var_os("SWEEP_CLIP") {
-        Some(clip) => clip_frames(Path::new(&clip))?,
+        Some(clip) => clip_frames(Path::new(&clip))?.0,
         None => paths
             .into_iter()
             .map(|p| {

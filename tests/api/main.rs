@@ -22,6 +22,7 @@ mod offline;
 mod openapi;
 mod overload;
 mod photometric;
+mod photometric_clip;
 mod postgres;
 mod readme;
 mod recovery;

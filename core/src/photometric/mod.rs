@@ -139,6 +139,21 @@ impl PhotoImage {
         }
     }
 
+    /// From a decoded video luma plane: taken as is when the clip is full range (0–255, e.g.
+    /// Motion-JPEG), else expanded from limited range ([`Self::from_limited_luma`]).
+    pub fn from_video_luma(width: usize, height: usize, luma: Vec<u8>, full_range: bool) -> Self {
+        if full_range {
+            Self {
+                width,
+                height,
+                max_level: 255,
+                data: luma.into_iter().map(u16::from).collect(),
+            }
+        } else {
+            Self::from_limited_luma(width, height, &luma)
+        }
+    }
+
     /// Decode PNG/TIFF/JPEG bytes keeping the bit depth: 16-bit files stay 16-bit, everything
     /// else becomes 8-bit; colour is reduced to luma by the `image` crate (Rec. 709 weights).
     pub fn decode(bytes: &[u8], limits: &ImageLimits) -> CoreResult<Self> {

@@ -9,7 +9,6 @@
 //! tracker needs overlap between consecutive kept frames, so slow camera motion suits it.
 
 use caliper_core::Progress;
-use caliper_core::io::Gray;
 use caliper_core::photometric::{CompressionNote, PhotoImage, judge_compression};
 use caliper_core::video::{FrameFormat, FrameOptions, FrameReader, VideoError, VideoLimits};
 use serde::{Deserialize, Serialize};
@@ -69,20 +68,6 @@ fn resolve_range(asked: LumaRange, signalled: Option<bool>) -> LumaRange {
         (LumaRange::Auto, Some(true)) => LumaRange::Full,
         (LumaRange::Auto, _) => LumaRange::Limited,
         (r, _) => r,
-    }
-}
-
-/// A decoded luma plane as the fit's image: limited range expanded to 16-bit full range.
-fn photo_image(width: u32, height: u32, luma: Vec<u8>, range: LumaRange) -> PhotoImage {
-    match range {
-        LumaRange::Full => PhotoImage::from_gray(&Gray {
-            width,
-            height,
-            data: luma,
-        }),
-        LumaRange::Limited | LumaRange::Auto => {
-            PhotoImage::from_limited_luma(width as usize, height as usize, &luma)
-        }
     }
 }
 
@@ -155,7 +140,12 @@ pub(super) fn clip_sequence(
         };
         let g = frame.image.into_luma();
         let (width, height) = g.dimensions();
-        images.push(photo_image(width, height, g.into_raw(), range));
+        images.push(PhotoImage::from_video_luma(
+            width as usize,
+            height as usize,
+            g.into_raw(),
+            range == LumaRange::Full,
+        ));
         frames.push((frame.index, frame.pts_s));
         progress.report("decode", frames.len() as u64, keep);
     }
