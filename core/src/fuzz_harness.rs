@@ -97,10 +97,10 @@ pub fn video(data: &[u8]) {
     if crate::video::probe(std::io::Cursor::new(data), &limits).is_err() {
         return;
     }
-    let format = if data.len().is_multiple_of(2) {
-        FrameFormat::Luma
-    } else {
-        FrameFormat::Rgb
+    let format = match data.len() % 3 {
+        0 => FrameFormat::Luma,
+        1 => FrameFormat::Gray,
+        _ => FrameFormat::Rgb,
     };
     let options = FrameOptions {
         format,

@@ -87,7 +87,7 @@ pub fn score_clip<R: Read + Seek>(
     params.validate()?;
     select.validate()?;
     let options = FrameOptions {
-        format: FrameFormat::Luma,
+        format: FrameFormat::Gray,
         ..FrameOptions::default()
     };
     let mut reader = FrameReader::open(r, limits, options).map_err(video_error)?;
@@ -221,13 +221,19 @@ mod tests {
     use super::*;
     use crate::progress::NoProgress;
 
+    fn sharp() -> image::GrayImage {
+        image::GrayImage::from_fn(160, 120, |x, y| {
+            image::Luma([if (x / 8 + y / 8) % 2 == 0 { 40 } else { 210 }])
+        })
+    }
+
     /// A clip whose frames alternate between a sharp pattern and a blurred copy.
     fn clip() -> Vec<u8> {
-        let sharp = image::GrayImage::from_fn(160, 120, |x, y| {
-            image::Luma([if (x / 8 + y / 8) % 2 == 0 { 40 } else { 210 }])
-        });
+        let sharp = sharp();
         let blurred = image::imageops::blur(&sharp, 4.0);
-        let frames: Vec<image::GrayImage> = (0..30)
+        // As RGB, so that the writer codes them in limited range as a camera would.
+        let [sharp, blurred] = [sharp, blurred].map(|g| image::DynamicImage::from(g).to_rgb8());
+        let frames: Vec<image::RgbImage> = (0..30)
             .map(|k| {
                 if k % 3 == 0 {
                     sharp.clone()
@@ -269,6 +275,16 @@ mod tests {
                 );
             }
         }
+        // The clip is coded in limited range; scored as a player shows it, a sharp frame's
+        // Laplacian variance is the still's (read as coded it would be (219/255)² ≈ 0.74 of it).
+        let still = sharp();
+        let still = laplacian_variance(&Gray {
+            width: still.width(),
+            height: still.height(),
+            data: still.into_raw(),
+        });
+        let ratio = r.frames[0].laplacian_variance / still;
+        assert!((0.9..1.1).contains(&ratio), "clip/still {ratio}");
         assert_eq!(r.selected.len(), 4);
         for w in r.selected.windows(2) {
             assert!(r.frames[w[1]].pts_s - r.frames[w[0]].pts_s >= 0.2 - 1e-9);

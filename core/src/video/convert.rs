@@ -5,14 +5,33 @@ use image::{GrayImage, ImageReader, RgbImage};
 use super::h264::Picture;
 use super::reader::{FrameFormat, FrameImage};
 
-/// The luma plane (as coded: no range expansion) or BT.601 limited-range RGB of `pic`.
-pub(crate) fn picture_to_image(pic: &Picture<'_>, format: FrameFormat) -> Option<FrameImage> {
+/// YCbCr → RGB coefficients (BT.601), ×256: `(luma gain, Cr→R, Cb→G, Cr→G, Cb→B)`.
+/// Limited range (16–235 luma, 16–240 chroma, the H.264 default) stretches the samples to
+/// 0–255; full range (JFIF, and H.264 whose SPS sets `video_full_range_flag`) keeps luma as
+/// is. Converting a full-range picture with the limited-range matrix would clip its
+/// darkest and brightest levels and stretch its contrast by 255/219.
+const LIMITED: [i32; 5] = [298, 409, 100, 208, 516];
+const FULL: [i32; 5] = [256, 359, 88, 183, 454];
+
+/// The luma plane (as coded: no range expansion) or BT.601 RGB of `pic`, in the sample
+/// range the stream signals (`full_range`).
+pub(crate) fn picture_to_image(
+    pic: &Picture<'_>,
+    format: FrameFormat,
+    full_range: bool,
+) -> Option<FrameImage> {
     let (w, h) = (pic.width, pic.height);
+    let ([gain, r_cr, g_cb, g_cr, b_cb], black) =
+        if full_range { (FULL, 0) } else { (LIMITED, 16) };
     match format {
-        FrameFormat::Luma => {
+        FrameFormat::Luma | FrameFormat::Gray => {
             let mut buf = Vec::with_capacity(w.checked_mul(h)?);
             for row in pic.y.chunks(pic.y_stride).take(h) {
                 buf.extend_from_slice(row.get(..w)?);
+            }
+            if format == FrameFormat::Gray && !full_range {
+                let lut = limited_to_full();
+                buf.iter_mut().for_each(|v| *v = lut[usize::from(*v)]);
             }
             GrayImage::from_raw(u32::try_from(w).ok()?, u32::try_from(h).ok()?, buf)
                 .map(FrameImage::Luma)
@@ -26,18 +45,23 @@ pub(crate) fn picture_to_image(pic: &Picture<'_>, format: FrameFormat) -> Option
                 let u_row = pic.u.get(cy * pic.uv_stride..)?;
                 let v_row = pic.v.get(cy * pic.uv_stride..)?;
                 for (x, px) in out_row.chunks_exact_mut(3).enumerate() {
-                    let c = 298 * (i32::from(y_row[x]) - 16);
+                    let c = gain * (i32::from(y_row[x]) - black);
                     let d = i32::from(*u_row.get(x / 2)?) - 128;
                     let e = i32::from(*v_row.get(x / 2)?) - 128;
-                    px[0] = clamp((c + 409 * e + 128) >> 8);
-                    px[1] = clamp((c - 100 * d - 208 * e + 128) >> 8);
-                    px[2] = clamp((c + 516 * d + 128) >> 8);
+                    px[0] = clamp((c + r_cr * e + 128) >> 8);
+                    px[1] = clamp((c - g_cb * d - g_cr * e + 128) >> 8);
+                    px[2] = clamp((c + b_cb * d + 128) >> 8);
                 }
             }
             RgbImage::from_raw(u32::try_from(w).ok()?, u32::try_from(h).ok()?, buf)
                 .map(FrameImage::Rgb)
         }
     }
+}
+
+/// Limited-range luma (16–235) → full range, rounded and clamped.
+fn limited_to_full() -> [u8; 256] {
+    std::array::from_fn(|y| clamp(((y as i32 - 16) * 255 * 2 + 219) / (2 * 219)))
 }
 
 fn clamp(v: i32) -> u8 {
@@ -65,7 +89,7 @@ pub(crate) fn jpeg_to_image(
     reader.limits(limits);
     let img = reader.decode().map_err(|e| e.to_string())?;
     Ok(match format {
-        FrameFormat::Luma => FrameImage::Luma(img.to_luma8()),
+        FrameFormat::Luma | FrameFormat::Gray => FrameImage::Luma(img.to_luma8()),
         FrameFormat::Rgb => FrameImage::Rgb(img.to_rgb8()),
     })
 }
@@ -81,5 +105,78 @@ pub(crate) fn rotate(img: FrameImage, deg: u16) -> FrameImage {
         (FrameImage::Rgb(i), 180) => FrameImage::Rgb(rotate180(&i)),
         (FrameImage::Rgb(i), 270) => FrameImage::Rgb(rotate270(&i)),
         (img, _) => img,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 2×2 picture of one colour (4:2:0: one chroma sample).
+    fn rgb_of(y: u8, u: u8, v: u8, full_range: bool) -> [u8; 3] {
+        let (ys, us, vs) = ([y; 4], [u], [v]);
+        let pic = Picture {
+            token: 0,
+            width: 2,
+            height: 2,
+            y: &ys,
+            y_stride: 2,
+            u: &us,
+            v: &vs,
+            uv_stride: 1,
+        };
+        match picture_to_image(&pic, FrameFormat::Rgb, full_range) {
+            Some(FrameImage::Rgb(img)) => img.get_pixel(1, 1).0,
+            other => panic!("expected RGB, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn limited_range_stretches_16_235_to_0_255() {
+        assert_eq!(rgb_of(16, 128, 128, false), [0, 0, 0]);
+        assert_eq!(rgb_of(235, 128, 128, false), [255, 255, 255]);
+        assert_eq!(rgb_of(126, 128, 128, false), [128, 128, 128]);
+    }
+
+    #[test]
+    fn full_range_keeps_grey_levels_and_the_ends() {
+        for y in [0u8, 1, 16, 100, 235, 254, 255] {
+            assert_eq!(rgb_of(y, 128, 128, true), [y, y, y]);
+        }
+        // Limited conversion of the same full-range samples clips near black and white.
+        assert_eq!(rgb_of(10, 128, 128, false), [0, 0, 0]);
+        assert_eq!(rgb_of(245, 128, 128, false), [255, 255, 255]);
+    }
+
+    #[test]
+    fn gray_expands_limited_luma_only() {
+        let ys = [16u8, 126, 235, 250];
+        let pic = Picture {
+            token: 0,
+            width: 2,
+            height: 2,
+            y: &ys,
+            y_stride: 2,
+            u: &[128],
+            v: &[128],
+            uv_stride: 1,
+        };
+        let raw = |format, full| match picture_to_image(&pic, format, full) {
+            Some(FrameImage::Luma(img)) => img.into_raw(),
+            other => panic!("expected luma, got {other:?}"),
+        };
+        assert_eq!(raw(FrameFormat::Gray, false), [0, 128, 255, 255]);
+        assert_eq!(raw(FrameFormat::Gray, true), ys);
+        assert_eq!(raw(FrameFormat::Luma, false), ys);
+    }
+
+    #[test]
+    fn full_range_colours_follow_jfif() {
+        // JFIF red: Y 76, Cb 85, Cr 255 → (255, 0, 0) within a level of rounding.
+        let [r, g, b] = rgb_of(76, 85, 255, true);
+        assert!(r >= 254 && g <= 1 && b <= 1, "{r} {g} {b}");
+        // Full-range blue: Y 29, Cb 255, Cr 107.
+        let [r, g, b] = rgb_of(29, 255, 107, true);
+        assert!(r <= 1 && g <= 1 && b >= 254, "{r} {g} {b}");
     }
 }

@@ -23,7 +23,13 @@ pub enum FrameFormat {
     /// Motion-JPEG frames are converted to gray.
     #[default]
     Luma,
-    /// 8-bit RGB (BT.601 limited range for H.264).
+    /// The luma plane in full range, as a player shows it: limited-range samples (16–235)
+    /// are stretched to 0–255, so that measures on grey values (a Laplacian's variance)
+    /// agree with those of the same scene as a still photo or read by OpenCV.
+    /// Motion-JPEG frames are converted to gray.
+    Gray,
+    /// 8-bit RGB (BT.601; H.264 samples are expanded from limited range unless the stream
+    /// signals full range, see [`VideoInfo::full_range`]).
     Rgb,
 }
 
@@ -123,6 +129,8 @@ pub struct FrameReader<R> {
     info: VideoInfo,
     track: Track,
     format: FrameFormat,
+    /// Whether decoded H.264 samples use the full 0–255 range (what the SPS signals).
+    full_range: bool,
     max_pixels: u64,
     /// Presentation index of each sample (decode order).
     rank: Vec<u64>,
@@ -197,11 +205,13 @@ impl<R: Read + Seek> FrameReader<R> {
             })
             .collect();
         let wanted_total = wanted.iter().filter(|&&w| w).count() as u64;
+        let full_range = info.full_range.unwrap_or(false);
         Ok(Self {
             r,
             info,
             track,
             format: options.format,
+            full_range,
             max_pixels: limits.max_pixels,
             rank,
             wanted,
@@ -352,7 +362,7 @@ impl<R: Read + Seek> FrameReader<R> {
                     &pic,
                     &self.track,
                     &self.wanted,
-                    self.format,
+                    (self.format, self.full_range),
                     self.max_pixels,
                     &mut self.reorder,
                 );
@@ -407,7 +417,7 @@ impl<R: Read + Seek> FrameReader<R> {
                             p,
                             &self.track,
                             &self.wanted,
-                            self.format,
+                            (self.format, self.full_range),
                             self.max_pixels,
                             &mut self.reorder,
                         )
@@ -460,13 +470,13 @@ fn sample_of(key: Key) -> usize {
     key.1 as usize
 }
 
-/// Files a decoded picture under the sample it came from (converted when wanted). Returns
-/// whether it belonged to a known sample.
+/// Files a decoded picture under the sample it came from (converted when wanted, in the
+/// format and sample range given). Returns whether it belonged to a known sample.
 fn accept(
     pic: &Picture<'_>,
     track: &Track,
     wanted: &[bool],
-    format: FrameFormat,
+    (format, full_range): (FrameFormat, bool),
     max_pixels: u64,
     reorder: &mut Reorder<Option<FrameImage>>,
 ) -> bool {
@@ -481,7 +491,7 @@ fn accept(
         return false;
     }
     let item = if wanted[s.0] {
-        picture_to_image(pic, format).map(|img| rotate(img, track.rotation_deg))
+        picture_to_image(pic, format, full_range).map(|img| rotate(img, track.rotation_deg))
     } else {
         None
     };

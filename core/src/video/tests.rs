@@ -202,6 +202,82 @@ fn round_trip_rgb_and_rotation() {
     }
 }
 
+/// An RGB scene with pure black and white patches beside colours and a grey ramp.
+fn extremes(w: u32, h: u32) -> RgbImage {
+    RgbImage::from_fn(w, h, |x, y| match (x * 4 / w, y * 2 / h) {
+        (0, 0) => Rgb([0, 0, 0]),
+        (1, 0) => Rgb([255, 255, 255]),
+        (2, 0) => Rgb([200, 40, 30]),
+        (3, 0) => Rgb([20, 60, 220]),
+        _ => {
+            let v = (x * 255 / w) as u8;
+            Rgb([v, v, v])
+        }
+    })
+}
+
+/// Mean absolute difference over a patch interior (away from chroma edges).
+fn patch_error(a: &RgbImage, b: &RgbImage, x0: u32, y0: u32, side: u32) -> f64 {
+    let mut sum = 0.0;
+    for y in y0..y0 + side {
+        for x in x0..x0 + side {
+            for c in 0..3 {
+                sum += (f64::from(a.get_pixel(x, y)[c]) - f64::from(b.get_pixel(x, y)[c])).abs();
+            }
+        }
+    }
+    sum / f64::from(3 * side * side)
+}
+
+#[test]
+fn full_range_clips_are_converted_in_full_range() {
+    let src: Vec<RgbImage> = (0..4).map(|_| extremes(64, 48)).collect();
+    for full_range in [false, true] {
+        let opts = WriterOptions {
+            full_range,
+            ..Default::default()
+        };
+        let clip = encode_h264_mp4_with(&src, 30.0, &opts).unwrap();
+        let info = probe(Cursor::new(&clip), &VideoLimits::default()).unwrap();
+        assert_eq!(info.full_range, full_range.then_some(true), "{info:?}");
+        let rgb = FrameOptions {
+            format: FrameFormat::Rgb,
+            ..Default::default()
+        };
+        let (frames, err) = luma_frames(&clip, rgb);
+        assert!(err.is_none());
+        let FrameImage::Rgb(img) = &frames[2].image else {
+            panic!("rgb expected")
+        };
+        // Black, white and both colours come back in either range: each patch's interior
+        // within a few levels (a full-range clip read as limited is stretched by 255/219:
+        // its red patch comes back 11 levels off, and levels near black and white clip).
+        for (i, x0) in [4u32, 20, 36, 52].into_iter().enumerate() {
+            let e = patch_error(img, &src[2], x0, 6, 8);
+            assert!(
+                e < 4.0,
+                "full_range {full_range}, patch {i}: {e:.2} levels off"
+            );
+        }
+        // `Gray` gives the luma as a player shows it in either range.
+        let gray = FrameOptions {
+            format: FrameFormat::Gray,
+            ..Default::default()
+        };
+        let (frames, _) = luma_frames(&clip, gray);
+        let FrameImage::Luma(g) = &frames[2].image else {
+            panic!("luma expected")
+        };
+        // BT.601 luma, the weights the writer codes with.
+        let want = GrayImage::from_fn(64, 48, |x, y| {
+            let [r, g, b] = src[2].get_pixel(x, y).0.map(u32::from);
+            Luma([((77 * r + 150 * g + 29 * b + 128) >> 8) as u8])
+        });
+        let p = psnr(g, &want);
+        assert!(p > 30.0, "full_range {full_range}: gray PSNR {p:.1}");
+    }
+}
+
 #[test]
 fn selection_stride_range_and_indices() {
     let src: Vec<GrayImage> = (0..30).map(|t| pattern(64, 48, t)).collect();

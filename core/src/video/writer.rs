@@ -10,7 +10,7 @@ use mp4_atom::{
 };
 use openh264::OpenH264API;
 use openh264::encoder::{
-    BitRate, Encoder, EncoderConfig, FrameRate, IntraFramePeriod, RateControlMode,
+    BitRate, Encoder, EncoderConfig, FrameRate, IntraFramePeriod, RateControlMode, VuiConfig,
 };
 use openh264::formats::YUVBuffer;
 
@@ -21,8 +21,9 @@ use super::h264::split_annex_b;
 pub trait EncodableImage {
     /// Width × height.
     fn size(&self) -> (u32, u32);
-    /// Writes the picture as I420 planes of `size()` (even width and height).
-    fn to_i420(&self, yuv: &mut [u8]);
+    /// Writes the picture as I420 planes of `size()` (even width and height), in full
+    /// (0–255) or limited (16–235) sample range.
+    fn to_i420(&self, yuv: &mut [u8], full_range: bool);
 }
 
 impl EncodableImage for GrayImage {
@@ -31,8 +32,9 @@ impl EncodableImage for GrayImage {
     }
 
     /// Stores gray levels in the luma plane verbatim (neutral chroma), so
-    /// `FrameFormat::Luma` gives them back unchanged up to coding loss.
-    fn to_i420(&self, yuv: &mut [u8]) {
+    /// `FrameFormat::Luma` gives them back unchanged up to coding loss (in either range:
+    /// the gray levels are taken to be coded samples already).
+    fn to_i420(&self, yuv: &mut [u8], _full_range: bool) {
         let n = self.as_raw().len();
         yuv[..n].copy_from_slice(self.as_raw());
         yuv[n..].fill(128);
@@ -44,14 +46,21 @@ impl EncodableImage for RgbImage {
         self.dimensions()
     }
 
-    /// BT.601 limited range, the inverse of what the reader's RGB output assumes.
-    fn to_i420(&self, yuv: &mut [u8]) {
+    /// BT.601 in the range asked for, the inverse of the reader's RGB conversion.
+    fn to_i420(&self, yuv: &mut [u8], full_range: bool) {
+        // ×256: luma weights, luma offset, then Cb and Cr weights.
+        let (ky, y0, ku, kv) = if full_range {
+            ([77, 150, 29], 0, [-43, -85, 128], [128, -107, -21])
+        } else {
+            ([66, 129, 25], 16, [-38, -74, 112], [112, -94, -18])
+        };
+        let dot = |k: [i32; 3], r: i32, g: i32, b: i32| (k[0] * r + k[1] * g + k[2] * b + 128) >> 8;
         let (w, h) = (self.width() as usize, self.height() as usize);
         let (y_plane, chroma) = yuv.split_at_mut(w * h);
         let (u_plane, v_plane) = chroma.split_at_mut(w * h / 4);
         for (i, p) in self.pixels().enumerate() {
             let [r, g, b] = p.0.map(i32::from);
-            y_plane[i] = (((66 * r + 129 * g + 25 * b + 128) >> 8) + 16).clamp(0, 255) as u8;
+            y_plane[i] = (dot(ky, r, g, b) + y0).clamp(0, 255) as u8;
         }
         for cy in 0..h / 2 {
             for cx in 0..w / 2 {
@@ -63,10 +72,8 @@ impl EncodableImage for RgbImage {
                     b += i32::from(p[2]);
                 }
                 let (r, g, b) = ((r + 2) / 4, (g + 2) / 4, (b + 2) / 4);
-                u_plane[cy * w / 2 + cx] =
-                    (((-38 * r - 74 * g + 112 * b + 128) >> 8) + 128).clamp(0, 255) as u8;
-                v_plane[cy * w / 2 + cx] =
-                    (((112 * r - 94 * g - 18 * b + 128) >> 8) + 128).clamp(0, 255) as u8;
+                u_plane[cy * w / 2 + cx] = (dot(ku, r, g, b) + 128).clamp(0, 255) as u8;
+                v_plane[cy * w / 2 + cx] = (dot(kv, r, g, b) + 128).clamp(0, 255) as u8;
             }
         }
     }
@@ -82,6 +89,9 @@ pub struct WriterOptions {
     /// Target bit rate in bits per second (0: about 2 bits per pixel per second... high
     /// enough that test comparisons are not dominated by coding loss).
     pub bitrate: u32,
+    /// Code full-range samples and say so in the SPS (`video_full_range_flag`), as some
+    /// phones and action cameras do; `false`: limited range, the H.264 default, unsignalled.
+    pub full_range: bool,
 }
 
 impl Default for WriterOptions {
@@ -90,6 +100,7 @@ impl Default for WriterOptions {
             rotation_deg: 0,
             keyframe_interval: 30,
             bitrate: 0,
+            full_range: false,
         }
     }
 }
@@ -118,6 +129,11 @@ pub fn encode_h264_mp4_with<I: EncodableImage>(
         .rate_control_mode(RateControlMode::Bitrate)
         .bitrate(BitRate::from_bps(bitrate))
         .intra_frame_period(IntraFramePeriod::from_num_frames(options.keyframe_interval));
+    let config = if options.full_range {
+        config.vui(VuiConfig::bt601().full_range(true))
+    } else {
+        config
+    };
     let mut encoder = Encoder::with_api_config(OpenH264API::from_source(), config)
         .map_err(|e| err(e.to_string()))?;
 
@@ -128,7 +144,7 @@ pub fn encode_h264_mp4_with<I: EncodableImage>(
     let mut keyframes = Vec::new();
     let mut annex_b = Vec::new();
     for (i, frame) in frames.iter().enumerate() {
-        frame.to_i420(&mut yuv);
+        frame.to_i420(&mut yuv, options.full_range);
         let source = YUVBuffer::from_vec(yuv.clone(), w as usize, h as usize);
         let bits = encoder.encode(&source).map_err(|e| err(e.to_string()))?;
         annex_b.clear();

@@ -147,7 +147,7 @@ fn score_video(
         .collect();
     let mut artifacts = Vec::new();
     let options = FrameOptions {
-        format: FrameFormat::Luma,
+        format: FrameFormat::Gray,
         indices: Some(wanted.clone()),
         ..FrameOptions::default()
     };
