@@ -3,26 +3,19 @@
 use image::{GrayImage, ImageReader, RgbImage};
 
 use super::h264::Picture;
+use super::matrix::YCbCr;
 use super::reader::{FrameFormat, FrameImage};
 
-/// YCbCr → RGB coefficients (BT.601), ×256: `(luma gain, Cr→R, Cb→G, Cr→G, Cb→B)`.
-/// Limited range (16–235 luma, 16–240 chroma, the H.264 default) stretches the samples to
-/// 0–255; full range (JFIF, and H.264 whose SPS sets `video_full_range_flag`) keeps luma as
-/// is. Converting a full-range picture with the limited-range matrix would clip its
-/// darkest and brightest levels and stretch its contrast by 255/219.
-const LIMITED: [i32; 5] = [298, 409, 100, 208, 516];
-const FULL: [i32; 5] = [256, 359, 88, 183, 454];
-
-/// The luma plane (as coded: no range expansion) or BT.601 RGB of `pic`, in the sample
-/// range the stream signals (`full_range`).
+/// The luma plane (as coded: no range expansion; `Gray` expands limited range) or RGB of
+/// `pic`, with the matrix and sample range the stream signals (`ycbcr`). Converting a
+/// full-range picture as limited would stretch it by 255/219 and clip near black and white.
 pub(crate) fn picture_to_image(
     pic: &Picture<'_>,
     format: FrameFormat,
-    full_range: bool,
+    ycbcr: YCbCr,
 ) -> Option<FrameImage> {
     let (w, h) = (pic.width, pic.height);
-    let ([gain, r_cr, g_cb, g_cr, b_cb], black) =
-        if full_range { (FULL, 0) } else { (LIMITED, 16) };
+    let full_range = ycbcr.full_range();
     match format {
         FrameFormat::Luma | FrameFormat::Gray => {
             let mut buf = Vec::with_capacity(w.checked_mul(h)?);
@@ -37,6 +30,7 @@ pub(crate) fn picture_to_image(
                 .map(FrameImage::Luma)
         }
         FrameFormat::Rgb => {
+            let to_rgb = ycbcr.to_rgb_fixed();
             let mut buf = vec![0u8; w.checked_mul(h)?.checked_mul(3)?];
             let chroma_rows = h / 2;
             for (yy, out_row) in buf.chunks_exact_mut(w * 3).enumerate() {
@@ -45,12 +39,11 @@ pub(crate) fn picture_to_image(
                 let u_row = pic.u.get(cy * pic.uv_stride..)?;
                 let v_row = pic.v.get(cy * pic.uv_stride..)?;
                 for (x, px) in out_row.chunks_exact_mut(3).enumerate() {
-                    let c = gain * (i32::from(y_row[x]) - black);
-                    let d = i32::from(*u_row.get(x / 2)?) - 128;
-                    let e = i32::from(*v_row.get(x / 2)?) - 128;
-                    px[0] = clamp((c + r_cr * e + 128) >> 8);
-                    px[1] = clamp((c - g_cb * d - g_cr * e + 128) >> 8);
-                    px[2] = clamp((c + b_cb * d + 128) >> 8);
+                    px.copy_from_slice(&to_rgb.rgb(
+                        y_row[x],
+                        *u_row.get(x / 2)?,
+                        *v_row.get(x / 2)?,
+                    ));
                 }
             }
             RgbImage::from_raw(u32::try_from(w).ok()?, u32::try_from(h).ok()?, buf)
@@ -125,7 +118,7 @@ mod tests {
             v: &vs,
             uv_stride: 1,
         };
-        match picture_to_image(&pic, FrameFormat::Rgb, full_range) {
+        match picture_to_image(&pic, FrameFormat::Rgb, YCbCr::new(false, full_range)) {
             Some(FrameImage::Rgb(img)) => img.get_pixel(1, 1).0,
             other => panic!("expected RGB, got {other:?}"),
         }
@@ -161,7 +154,7 @@ mod tests {
             v: &[128],
             uv_stride: 1,
         };
-        let raw = |format, full| match picture_to_image(&pic, format, full) {
+        let raw = |format, full| match picture_to_image(&pic, format, YCbCr::new(false, full)) {
             Some(FrameImage::Luma(img)) => img.into_raw(),
             other => panic!("expected luma, got {other:?}"),
         };

@@ -16,6 +16,7 @@ mod demux;
 mod error;
 mod h264;
 mod limits;
+mod matrix;
 mod overlap;
 mod prune;
 mod reader;
@@ -31,6 +32,7 @@ use serde::{Deserialize, Serialize};
 
 pub use error::VideoError;
 pub use limits::VideoLimits;
+pub use matrix::YCbCr;
 pub(crate) use overlap::overlap_batches;
 pub use reader::{DecodeIssue, Frame, FrameFormat, FrameImage, FrameOptions, FrameReader};
 pub use writer::{
@@ -122,6 +124,12 @@ pub struct VideoInfo {
     /// (16–235, signalled), `null` when the stream does not say (H.264 then means limited).
     #[serde(default)]
     pub full_range: Option<bool>,
+    /// H.264's `matrix_coefficients` (ITU-T H.264 table E-5: 1 BT.709, 5 or 6 BT.601, 9
+    /// BT.2020), `null` when the stream does not say. RGB frames (deblurred clip frames) are
+    /// converted with BT.709 for 1 and BT.601 otherwise (JFIF's for Motion-JPEG); luma does not
+    /// depend on it.
+    #[serde(default)]
+    pub matrix_coefficients: Option<u8>,
 }
 
 /// Describes a clip from its index, whatever the codec; checks only the limits needed to
@@ -185,6 +193,7 @@ pub(crate) fn check(info: &VideoInfo, limits: &VideoLimits) -> Result<(), VideoE
 }
 
 fn info_of(track: &demux::Track) -> VideoInfo {
+    let signal = track.avcc.as_ref().and_then(h264::video_signal);
     let n = track.samples.len() as u64;
     let keyframes = track.samples.iter().filter(|s| s.keyframe).count() as u64;
     let ts = f64::from(track.timescale);
@@ -237,7 +246,8 @@ fn info_of(track: &demux::Track) -> VideoInfo {
         bits_per_pixel,
         full_range: match &track.codec {
             Codec::Mjpeg { .. } => Some(true),
-            _ => track.avcc.as_ref().and_then(h264::full_range),
+            _ => signal.map(|s| s.full_range),
         },
+        matrix_coefficients: signal.and_then(|s| s.matrix_coefficients),
     }
 }

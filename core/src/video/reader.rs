@@ -11,6 +11,7 @@ use super::demux::{self, Track};
 use super::error::VideoError;
 use super::h264::{self, Picture, RawDecoder};
 use super::limits::VideoLimits;
+use super::matrix::YCbCr;
 use super::reorder::{Key, Reorder};
 use super::{Codec, VideoInfo};
 
@@ -129,8 +130,8 @@ pub struct FrameReader<R> {
     info: VideoInfo,
     track: Track,
     format: FrameFormat,
-    /// Whether decoded H.264 samples use the full 0–255 range (what the SPS signals).
-    full_range: bool,
+    /// The colour matrix and sample range of decoded H.264 pictures (what the SPS signals).
+    ycbcr: YCbCr,
     max_pixels: u64,
     /// Presentation index of each sample (decode order).
     rank: Vec<u64>,
@@ -205,13 +206,13 @@ impl<R: Read + Seek> FrameReader<R> {
             })
             .collect();
         let wanted_total = wanted.iter().filter(|&&w| w).count() as u64;
-        let full_range = info.full_range.unwrap_or(false);
+        let ycbcr = YCbCr::signalled(info.matrix_coefficients, info.full_range.unwrap_or(false));
         Ok(Self {
             r,
             info,
             track,
             format: options.format,
-            full_range,
+            ycbcr,
             max_pixels: limits.max_pixels,
             rank,
             wanted,
@@ -362,7 +363,7 @@ impl<R: Read + Seek> FrameReader<R> {
                     &pic,
                     &self.track,
                     &self.wanted,
-                    (self.format, self.full_range),
+                    (self.format, self.ycbcr),
                     self.max_pixels,
                     &mut self.reorder,
                 );
@@ -417,7 +418,7 @@ impl<R: Read + Seek> FrameReader<R> {
                             p,
                             &self.track,
                             &self.wanted,
-                            (self.format, self.full_range),
+                            (self.format, self.ycbcr),
                             self.max_pixels,
                             &mut self.reorder,
                         )
@@ -476,7 +477,7 @@ fn accept(
     pic: &Picture<'_>,
     track: &Track,
     wanted: &[bool],
-    (format, full_range): (FrameFormat, bool),
+    (format, ycbcr): (FrameFormat, YCbCr),
     max_pixels: u64,
     reorder: &mut Reorder<Option<FrameImage>>,
 ) -> bool {
@@ -491,7 +492,7 @@ fn accept(
         return false;
     }
     let item = if wanted[s.0] {
-        picture_to_image(pic, format, full_range).map(|img| rotate(img, track.rotation_deg))
+        picture_to_image(pic, format, ycbcr).map(|img| rotate(img, track.rotation_deg))
     } else {
         None
     };

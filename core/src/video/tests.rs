@@ -230,16 +230,20 @@ fn patch_error(a: &RgbImage, b: &RgbImage, x0: u32, y0: u32, side: u32) -> f64 {
 }
 
 #[test]
-fn full_range_clips_are_converted_in_full_range() {
+fn clips_are_converted_with_the_signalled_range_and_matrix() {
     let src: Vec<RgbImage> = (0..4).map(|_| extremes(64, 48)).collect();
-    for full_range in [false, true] {
+    for (full_range, bt709) in [(false, false), (true, false), (false, true), (true, true)] {
         let opts = WriterOptions {
             full_range,
+            bt709,
             ..Default::default()
         };
         let clip = encode_h264_mp4_with(&src, 30.0, &opts).unwrap();
         let info = probe(Cursor::new(&clip), &VideoLimits::default()).unwrap();
-        assert_eq!(info.full_range, full_range.then_some(true), "{info:?}");
+        let signalled = full_range || bt709;
+        assert_eq!(info.full_range, signalled.then_some(full_range), "{info:?}");
+        let matrix = signalled.then_some(if bt709 { 1 } else { 6 });
+        assert_eq!(info.matrix_coefficients, matrix, "{info:?}");
         let rgb = FrameOptions {
             format: FrameFormat::Rgb,
             ..Default::default()
@@ -249,15 +253,13 @@ fn full_range_clips_are_converted_in_full_range() {
         let FrameImage::Rgb(img) = &frames[2].image else {
             panic!("rgb expected")
         };
-        // Black, white and both colours come back in either range: each patch's interior
-        // within a few levels (a full-range clip read as limited is stretched by 255/219:
-        // its red patch comes back 11 levels off, and levels near black and white clip).
+        // Black, white and both colours come back in either range and matrix: each patch's
+        // interior within a few levels (a full-range clip read as limited is stretched by
+        // 255/219: its red patch comes back 11 levels off, and levels near black and white
+        // clip; a BT.709 clip read with BT.601 shifts saturated colours).
         for (i, x0) in [4u32, 20, 36, 52].into_iter().enumerate() {
             let e = patch_error(img, &src[2], x0, 6, 8);
-            assert!(
-                e < 4.0,
-                "full_range {full_range}, patch {i}: {e:.2} levels off"
-            );
+            assert!(e < 4.0, "{opts:?}, patch {i}: {e:.2} levels off");
         }
         // `Gray` gives the luma as a player shows it in either range.
         let gray = FrameOptions {
@@ -268,13 +270,18 @@ fn full_range_clips_are_converted_in_full_range() {
         let FrameImage::Luma(g) = &frames[2].image else {
             panic!("luma expected")
         };
-        // BT.601 luma, the weights the writer codes with.
+        // The luma of the matrix the writer codes with.
+        let (kr, kb) = if bt709 {
+            (0.2126, 0.0722)
+        } else {
+            (0.299, 0.114)
+        };
         let want = GrayImage::from_fn(64, 48, |x, y| {
-            let [r, g, b] = src[2].get_pixel(x, y).0.map(u32::from);
-            Luma([((77 * r + 150 * g + 29 * b + 128) >> 8) as u8])
+            let [r, g, b] = src[2].get_pixel(x, y).0.map(f64::from);
+            Luma([(kr * r + (1.0 - kr - kb) * g + kb * b).round() as u8])
         });
         let p = psnr(g, &want);
-        assert!(p > 30.0, "full_range {full_range}: gray PSNR {p:.1}");
+        assert!(p > 30.0, "{opts:?}: gray PSNR {p:.1}");
     }
 }
 

@@ -16,14 +16,15 @@ use openh264::formats::YUVBuffer;
 
 use super::error::VideoError;
 use super::h264::split_annex_b;
+use super::matrix::YCbCr;
 
 /// A picture the writer accepts: 8-bit gray or RGB.
 pub trait EncodableImage {
     /// Width × height.
     fn size(&self) -> (u32, u32);
-    /// Writes the picture as I420 planes of `size()` (even width and height), in full
-    /// (0–255) or limited (16–235) sample range.
-    fn to_i420(&self, yuv: &mut [u8], full_range: bool);
+    /// Writes the picture as I420 planes of `size()` (even width and height), with the
+    /// colour matrix and sample range of `ycbcr`.
+    fn to_i420(&self, yuv: &mut [u8], ycbcr: YCbCr);
 }
 
 impl EncodableImage for GrayImage {
@@ -34,7 +35,7 @@ impl EncodableImage for GrayImage {
     /// Stores gray levels in the luma plane verbatim (neutral chroma), so
     /// `FrameFormat::Luma` gives them back unchanged up to coding loss (in either range:
     /// the gray levels are taken to be coded samples already).
-    fn to_i420(&self, yuv: &mut [u8], _full_range: bool) {
+    fn to_i420(&self, yuv: &mut [u8], _ycbcr: YCbCr) {
         let n = self.as_raw().len();
         yuv[..n].copy_from_slice(self.as_raw());
         yuv[n..].fill(128);
@@ -46,34 +47,28 @@ impl EncodableImage for RgbImage {
         self.dimensions()
     }
 
-    /// BT.601 in the range asked for, the inverse of the reader's RGB conversion.
-    fn to_i420(&self, yuv: &mut [u8], full_range: bool) {
-        // ×256: luma weights, luma offset, then Cb and Cr weights.
-        let (ky, y0, ku, kv) = if full_range {
-            ([77, 150, 29], 0, [-43, -85, 128], [128, -107, -21])
-        } else {
-            ([66, 129, 25], 16, [-38, -74, 112], [112, -94, -18])
-        };
-        let dot = |k: [i32; 3], r: i32, g: i32, b: i32| (k[0] * r + k[1] * g + k[2] * b + 128) >> 8;
+    /// BT.601 or BT.709 in the range asked for, the inverse of the reader's RGB conversion.
+    fn to_i420(&self, yuv: &mut [u8], ycbcr: YCbCr) {
         let (w, h) = (self.width() as usize, self.height() as usize);
         let (y_plane, chroma) = yuv.split_at_mut(w * h);
         let (u_plane, v_plane) = chroma.split_at_mut(w * h / 4);
+        let q = |v: f64| v.round().clamp(0.0, 255.0) as u8;
         for (i, p) in self.pixels().enumerate() {
-            let [r, g, b] = p.0.map(i32::from);
-            y_plane[i] = (dot(ky, r, g, b) + y0).clamp(0, 255) as u8;
+            let [r, g, b] = p.0.map(f64::from);
+            y_plane[i] = q(ycbcr.from_rgb(r, g, b)[0]);
         }
         for cy in 0..h / 2 {
             for cx in 0..w / 2 {
-                let (mut r, mut g, mut b) = (0, 0, 0);
+                let mut sum = [0.0f64; 3];
                 for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
                     let p = self.get_pixel((2 * cx + dx) as u32, (2 * cy + dy) as u32).0;
-                    r += i32::from(p[0]);
-                    g += i32::from(p[1]);
-                    b += i32::from(p[2]);
+                    for c in 0..3 {
+                        sum[c] += f64::from(p[c]) / 4.0;
+                    }
                 }
-                let (r, g, b) = ((r + 2) / 4, (g + 2) / 4, (b + 2) / 4);
-                u_plane[cy * w / 2 + cx] = (dot(ku, r, g, b) + 128).clamp(0, 255) as u8;
-                v_plane[cy * w / 2 + cx] = (dot(kv, r, g, b) + 128).clamp(0, 255) as u8;
+                let [_, cb, cr] = ycbcr.from_rgb(sum[0], sum[1], sum[2]);
+                u_plane[cy * w / 2 + cx] = q(cb);
+                v_plane[cy * w / 2 + cx] = q(cr);
             }
         }
     }
@@ -92,6 +87,9 @@ pub struct WriterOptions {
     /// Code full-range samples and say so in the SPS (`video_full_range_flag`), as some
     /// phones and action cameras do; `false`: limited range, the H.264 default, unsignalled.
     pub full_range: bool,
+    /// Code with the BT.709 matrix and say so in the SPS (`matrix_coefficients` 1), as HD
+    /// cameras do; `false`: BT.601, unsignalled unless `full_range` is set.
+    pub bt709: bool,
 }
 
 impl Default for WriterOptions {
@@ -101,6 +99,7 @@ impl Default for WriterOptions {
             keyframe_interval: 30,
             bitrate: 0,
             full_range: false,
+            bt709: false,
         }
     }
 }
@@ -129,10 +128,14 @@ pub fn encode_h264_mp4_with<I: EncodableImage>(
         .rate_control_mode(RateControlMode::Bitrate)
         .bitrate(BitRate::from_bps(bitrate))
         .intra_frame_period(IntraFramePeriod::from_num_frames(options.keyframe_interval));
-    let config = if options.full_range {
-        config.vui(VuiConfig::bt601().full_range(true))
-    } else {
-        config
+    let ycbcr = YCbCr::new(options.bt709, options.full_range);
+    let config = match (options.bt709, options.full_range) {
+        (false, false) => config,
+        (bt709, full) => config.vui(if bt709 {
+            VuiConfig::bt709().full_range(full)
+        } else {
+            VuiConfig::bt601().full_range(full)
+        }),
     };
     let mut encoder = Encoder::with_api_config(OpenH264API::from_source(), config)
         .map_err(|e| err(e.to_string()))?;
@@ -144,7 +147,7 @@ pub fn encode_h264_mp4_with<I: EncodableImage>(
     let mut keyframes = Vec::new();
     let mut annex_b = Vec::new();
     for (i, frame) in frames.iter().enumerate() {
-        frame.to_i420(&mut yuv, options.full_range);
+        frame.to_i420(&mut yuv, ycbcr);
         let source = YUVBuffer::from_vec(yuv.clone(), w as usize, h as usize);
         let bits = encoder.encode(&source).map_err(|e| err(e.to_string()))?;
         annex_b.clear();

@@ -26,11 +26,12 @@ fn profile_name(profile_idc: u8, compat: u8) -> Result<&'static str, &'static st
     }
 }
 
-/// What the first SPS of `avcc` says about the sample range (see [`sps::video_full_range`]).
-pub(crate) fn full_range(avcc: &Avcc) -> Option<bool> {
+/// What the first SPS of `avcc` says about the sample range and colour matrix (see
+/// [`sps::video_signal`]).
+pub(crate) fn video_signal(avcc: &Avcc) -> Option<sps::VideoSignal> {
     avcc.sequence_parameter_sets
         .first()
-        .and_then(|nal| sps::video_full_range(nal))
+        .and_then(|nal| sps::video_signal(nal))
 }
 
 /// The codec of an `avc1`/`avc3` sample entry.

@@ -1,16 +1,33 @@
-//! The one field of an H.264 sequence parameter set that Caliper needs before decoding: whether
+//! The fields of an H.264 sequence parameter set that Caliper needs before decoding: whether
 //! the stream says its samples use the full 0–255 range (`video_full_range_flag` in the VUI,
-//! ITU-T H.264 §7.3.2.1.1 and Annex E.1.1). Phones that record full-range video say so there,
-//! and a photometric fit that expanded such samples as if they were limited range would clip
-//! the darkest and brightest levels.
+//! ITU-T H.264 §7.3.2.1.1 and Annex E.1.1), and which matrix turns its YCbCr into RGB
+//! (`matrix_coefficients`, Annex E table E-5). Phones that record full-range video say so
+//! there, and a photometric fit that expanded such samples as if they were limited range
+//! would clip the darkest and brightest levels; HD cameras code with the BT.709 matrix, and
+//! converting their colours with BT.601's shifts saturated colours by several levels.
 //!
 //! The parser walks the SPS fields in order up to the video signal type and stops; every read
 //! is bounded by the NAL's length, so a malformed SPS gives `None`, never a panic.
 
+/// The video signal type of an SPS's VUI.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct VideoSignal {
+    /// `video_full_range_flag`.
+    pub full_range: bool,
+    /// `matrix_coefficients` when the colour description is present.
+    pub matrix_coefficients: Option<u8>,
+}
+
 /// What the SPS `nal` (with its one-byte NAL header, as stored in `avcC`) says about the
 /// sample range: `Some(true)` full range, `Some(false)` limited range, `None` when the SPS does
 /// not signal it (H.264 then means limited range) or cannot be parsed.
+#[cfg(test)]
 pub(crate) fn video_full_range(nal: &[u8]) -> Option<bool> {
+    video_signal(nal).map(|s| s.full_range)
+}
+
+/// The SPS's video signal type; `None` when the SPS has none or cannot be parsed.
+pub(crate) fn video_signal(nal: &[u8]) -> Option<VideoSignal> {
     let rbsp = unescape(nal.get(1..)?);
     let mut r = Bits::new(&rbsp);
     let profile_idc = r.bits(8)?;
@@ -84,7 +101,18 @@ pub(crate) fn video_full_range(nal: &[u8]) -> Option<bool> {
         return None; // no video signal type
     }
     r.bits(3)?; // video_format
-    Some(r.bits(1)? == 1)
+    let full_range = r.bits(1)? == 1;
+    let matrix_coefficients = match r.bits(1) {
+        Some(1) => {
+            r.bits(16)?; // colour_primaries, transfer_characteristics
+            r.bits(8).and_then(|m| u8::try_from(m).ok())
+        }
+        _ => None,
+    };
+    Some(VideoSignal {
+        full_range,
+        matrix_coefficients,
+    })
 }
 
 /// Skips a `scaling_list` of `size` entries (§7.3.2.1.1.1): deltas until one ends the list.
@@ -181,6 +209,15 @@ mod tests {
         // High profile, limited range with BT.709 primaries signalled.
         let limited = hex("6764000aacd9447b016a02040480000003008000000a078912cb");
         assert_eq!(video_full_range(&limited), Some(false));
+        // Only the primaries were set there: the matrix is 2, "unspecified" (read as BT.601).
+        assert_eq!(
+            video_signal(&limited).and_then(|s| s.matrix_coefficients),
+            Some(2)
+        );
+        assert_eq!(
+            video_signal(&full).and_then(|s| s.matrix_coefficients),
+            None
+        );
         // Constrained Baseline without a video signal type: not said.
         let silent = hex("6742c00ad9047b011000000300100000030140f1226480");
         assert_eq!(video_full_range(&silent), None);
