@@ -56,7 +56,7 @@ impl YCbCr {
     }
 
     /// Y, Cb, Cr code values (not rounded) of an RGB triple on 0–255.
-    pub(crate) fn from_rgb(self, r: f64, g: f64, b: f64) -> [f64; 3] {
+    pub(crate) fn ycbcr_of_rgb(self, r: f64, g: f64, b: f64) -> [f64; 3] {
         let (ys, cs, y0) = self.range();
         let kg = 1.0 - self.kr - self.kb;
         let y = self.kr * r + kg * g + self.kb * b;
@@ -65,7 +65,7 @@ impl YCbCr {
         [y0 + ys * y, 128.0 + cs * cb, 128.0 + cs * cr]
     }
 
-    /// The inverse of [`YCbCr::from_rgb`] in fixed point.
+    /// The inverse of [`YCbCr::ycbcr_of_rgb`] in fixed point.
     pub(crate) fn to_rgb_fixed(self) -> FixedToRgb {
         let (ys, cs, y0) = self.range();
         let kg = 1.0 - self.kr - self.kb;
@@ -126,7 +126,7 @@ mod tests {
                     [200.0, 40.0, 30.0],
                     [20.0, 60.0, 220.0],
                 ] {
-                    let [y, cb, cr] = m.from_rgb(rgb[0], rgb[1], rgb[2]);
+                    let [y, cb, cr] = m.ycbcr_of_rgb(rgb[0], rgb[1], rgb[2]);
                     let q = |v: f64| v.round().clamp(0.0, 255.0) as u8;
                     let back = inv.rgb(q(y), q(cb), q(cr));
                     for c in 0..3 {
@@ -141,7 +141,7 @@ mod tests {
     #[test]
     fn the_wrong_matrix_shifts_saturated_colours() {
         let (m601, m709) = (YCbCr::new(false, false), YCbCr::new(true, false));
-        let [y, cb, cr] = m709.from_rgb(200.0, 40.0, 30.0);
+        let [y, cb, cr] = m709.ycbcr_of_rgb(200.0, 40.0, 30.0);
         let q = |v: f64| v.round() as u8;
         let wrong = m601.to_rgb_fixed().rgb(q(y), q(cb), q(cr));
         let off = wrong

@@ -55,7 +55,7 @@ impl EncodableImage for RgbImage {
         let q = |v: f64| v.round().clamp(0.0, 255.0) as u8;
         for (i, p) in self.pixels().enumerate() {
             let [r, g, b] = p.0.map(f64::from);
-            y_plane[i] = q(ycbcr.from_rgb(r, g, b)[0]);
+            y_plane[i] = q(ycbcr.ycbcr_of_rgb(r, g, b)[0]);
         }
         for cy in 0..h / 2 {
             for cx in 0..w / 2 {
@@ -66,7 +66,7 @@ impl EncodableImage for RgbImage {
                         sum[c] += f64::from(p[c]) / 4.0;
                     }
                 }
-                let [_, cb, cr] = ycbcr.from_rgb(sum[0], sum[1], sum[2]);
+                let [_, cb, cr] = ycbcr.ycbcr_of_rgb(sum[0], sum[1], sum[2]);
                 u_plane[cy * w / 2 + cx] = q(cb);
                 v_plane[cy * w / 2 + cx] = q(cr);
             }
