@@ -105,19 +105,24 @@ pub(crate) fn rotate(img: FrameImage, deg: u16) -> FrameImage {
 mod tests {
     use super::*;
 
-    /// A 2×2 picture of one colour (4:2:0: one chroma sample).
-    fn rgb_of(y: u8, u: u8, v: u8, full_range: bool) -> [u8; 3] {
-        let (ys, us, vs) = ([y; 4], [u], [v]);
-        let pic = Picture {
+    /// A 2×2 picture (4:2:0: one chroma sample).
+    fn picture<'a>(ys: &'a [u8; 4], u: &'a [u8; 1], v: &'a [u8; 1]) -> Picture<'a> {
+        Picture {
             token: 0,
             width: 2,
             height: 2,
-            y: &ys,
+            y: ys,
             y_stride: 2,
-            u: &us,
-            v: &vs,
+            u,
+            v,
             uv_stride: 1,
-        };
+        }
+    }
+
+    /// RGB of a 2×2 picture of one colour.
+    fn rgb_of(y: u8, u: u8, v: u8, full_range: bool) -> [u8; 3] {
+        let (ys, us, vs) = ([y; 4], [u], [v]);
+        let pic = picture(&ys, &us, &vs);
         match picture_to_image(&pic, FrameFormat::Rgb, YCbCr::new(false, full_range)) {
             Some(FrameImage::Rgb(img)) => img.get_pixel(1, 1).0,
             other => panic!("expected RGB, got {other:?}"),
@@ -144,16 +149,7 @@ mod tests {
     #[test]
     fn gray_expands_limited_luma_only() {
         let ys = [16u8, 126, 235, 250];
-        let pic = Picture {
-            token: 0,
-            width: 2,
-            height: 2,
-            y: &ys,
-            y_stride: 2,
-            u: &[128],
-            v: &[128],
-            uv_stride: 1,
-        };
+        let pic = picture(&ys, &[128], &[128]);
         let raw = |format, full| match picture_to_image(&pic, format, YCbCr::new(false, full)) {
             Some(FrameImage::Luma(img)) => img.into_raw(),
             other => panic!("expected luma, got {other:?}"),
