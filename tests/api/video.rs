@@ -166,3 +166,58 @@ async fn blur_score_scores_every_frame_of_a_clip_and_picks_the_sharpest() {
     assert_eq!(body["code"], "dataset_kind_mismatch");
     s.stop().await;
 }
+
+/// A clip coded in full range with the BT.709 matrix, as phones write them: the upload says
+/// so, and a frame restored by `deblur` (a 1-pixel kernel, so the restoration is the frame)
+/// keeps its colours, black and white (read as limited BT.601 they came back 10+ levels off).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn full_range_bt709_clips_keep_their_colours() {
+    let (w, h) = (64u32, 48u32);
+    let scene = image::RgbImage::from_fn(w, h, |x, y| match (x * 4 / w, y * 2 / h) {
+        (0, 0) => image::Rgb([0, 0, 0]),
+        (1, 0) => image::Rgb([255, 255, 255]),
+        (2, 0) => image::Rgb([200, 40, 30]),
+        (3, 0) => image::Rgb([20, 60, 220]),
+        _ => image::Rgb([(x * 4) as u8, 128, (255 - x * 4) as u8]),
+    });
+    let options = caliper_core::video::WriterOptions {
+        full_range: true,
+        bt709: true,
+        ..Default::default()
+    };
+    let frames = vec![scene.clone(); 6];
+    let mp4 = caliper_core::video::encode_h264_mp4_with(&frames, 10.0, &options).expect("encode");
+    let s = start().await;
+    let (st, ds, _) = s.upload(vec![("phone.mp4", mp4)]).await;
+    assert_eq!(st, 201, "{ds}");
+    let v = &ds["files"][0]["video"];
+    assert_eq!(v["full_range"], true, "{v}");
+    assert_eq!(v["matrix_coefficients"], 1, "{v}");
+    let id = s
+        .job(serde_json::json!({"kind": "deblur", "dataset": ds["id"],
+            "params": {"method": "wiener", "psf": {"width": 1, "height": 1, "data": [1.0]},
+                       "frames": {"times": [0.0]}}}))
+        .await;
+    let done = s.wait_terminal(&id).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let r = reqwest::get(s.url(&format!("/v1/jobs/{id}/artifacts/frame_000000.png")))
+        .await
+        .expect("get");
+    assert_eq!(r.status(), 200);
+    let out = image::load_from_memory(&r.bytes().await.expect("bytes"))
+        .expect("png")
+        .to_rgb8();
+    for (i, x0) in [4u32, 20, 36, 52].into_iter().enumerate() {
+        let mut worst = 0i32;
+        for y in 6..14 {
+            for x in x0..x0 + 8 {
+                for c in 0..3 {
+                    let d = i32::from(out.get_pixel(x, y)[c]) - i32::from(scene.get_pixel(x, y)[c]);
+                    worst = worst.max(d.abs());
+                }
+            }
+        }
+        assert!(worst <= 6, "patch {i}: {worst} levels off");
+    }
+    s.stop().await;
+}
