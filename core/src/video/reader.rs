@@ -29,8 +29,9 @@ pub enum FrameFormat {
     /// agree with those of the same scene as a still photo or read by OpenCV.
     /// Motion-JPEG frames are converted to gray.
     Gray,
-    /// 8-bit RGB (BT.601; H.264 samples are expanded from limited range unless the stream
-    /// signals full range, see [`VideoInfo::full_range`]).
+    /// 8-bit RGB, converted with the colour matrix and sample range the stream signals
+    /// ([`VideoInfo::matrix_coefficients`], [`VideoInfo::full_range`]; BT.601 limited range
+    /// when an H.264 stream says nothing).
     Rgb,
 }
 
@@ -472,7 +473,7 @@ fn sample_of(key: Key) -> usize {
 }
 
 /// Files a decoded picture under the sample it came from (converted when wanted, in the
-/// format and sample range given). Returns whether it belonged to a known sample.
+/// format, colour matrix and sample range given). Returns whether it belonged to a known sample.
 fn accept(
     pic: &Picture<'_>,
     track: &Track,
