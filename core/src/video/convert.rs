@@ -15,15 +15,16 @@ pub(crate) fn picture_to_image(
     ycbcr: YCbCr,
 ) -> Option<FrameImage> {
     let (w, h) = (pic.width, pic.height);
-    let full_range = ycbcr.full_range();
     match format {
         FrameFormat::Luma | FrameFormat::Gray => {
             let mut buf = Vec::with_capacity(w.checked_mul(h)?);
             for row in pic.y.chunks(pic.y_stride).take(h) {
                 buf.extend_from_slice(row.get(..w)?);
             }
-            if format == FrameFormat::Gray && !full_range {
-                let lut = limited_to_full();
+            if format == FrameFormat::Gray && !ycbcr.full_range() {
+                // The luma of the RGB conversion: grey (neutral chroma) as a player shows it.
+                let to_rgb = ycbcr.to_rgb_fixed();
+                let lut: [u8; 256] = std::array::from_fn(|y| to_rgb.rgb(y as u8, 128, 128)[0]);
                 buf.iter_mut().for_each(|v| *v = lut[usize::from(*v)]);
             }
             GrayImage::from_raw(u32::try_from(w).ok()?, u32::try_from(h).ok()?, buf)
@@ -50,15 +51,6 @@ pub(crate) fn picture_to_image(
                 .map(FrameImage::Rgb)
         }
     }
-}
-
-/// Limited-range luma (16–235) → full range, rounded and clamped.
-fn limited_to_full() -> [u8; 256] {
-    std::array::from_fn(|y| clamp(((y as i32 - 16) * 255 * 2 + 219) / (2 * 219)))
-}
-
-fn clamp(v: i32) -> u8 {
-    v.clamp(0, 255) as u8
 }
 
 /// Decodes one Motion-JPEG sample, refusing pictures larger than `max_pixels`.
