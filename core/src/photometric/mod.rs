@@ -49,9 +49,9 @@ pub use correct::{CorrectParams, correct};
 pub use emor::{EMOR_DIM, EMOR_SAMPLES, EmorBasis, emor_basis};
 pub use flat::{VignetteKind, VignettingParams, VignettingResult, vignetting};
 pub use online::{
-    BrokenTracks, CenterMode, CenterReport, ChannelResponse, Channels, CompressionLevel,
-    CompressionNote, MeasuredLevels, OnlineParams, OnlineResult, judge_compression,
-    photometric_online, photometric_online_rgb,
+    BrokenTracks, CenterMode, CenterReport, ChannelResponse, Channels, CircleMode,
+    CompressionLevel, CompressionNote, ImageCircle, MeasuredLevels, OnlineParams, OnlineResult,
+    judge_compression, photometric_online, photometric_online_rgb,
 };
 pub use response::{InverseResponse, ResponseModel};
 pub use spline::RadialSpline;

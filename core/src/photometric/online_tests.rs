@@ -299,3 +299,103 @@ fn online_calibration_follows_mechanical_vignetting() {
         "spline {spline_err} against polynomial {poly_err}"
     );
 }
+
+/// A fisheye whose image circle cuts the frame (black corners): the video's circle is found
+/// where the truth falls to 5 %, the model is masked beyond it and centred on it
+/// (`vignette_center: auto`), a spline follows the border, and the map inside the circle is
+/// closer to the truth than without the circle (`image_circle: off`). A lens without a circle
+/// reports none.
+#[test]
+fn online_calibration_masks_a_fisheye_image_circle() {
+    use super::synth::{AeVideo, VignetteForm, render_ae_video};
+    let (w, h) = (200, 150);
+    let cam = SynthCamera::reference(w, h, 41);
+    let video = AeVideo {
+        vignette: VignetteForm::FisheyeLogistic {
+            corner_deg: 45.0,
+            radius: 0.78,
+            width: 0.03,
+        },
+        mid: 0.06,
+        stops: 6.0,
+        ..AeVideo::default()
+    };
+    let seq = render_ae_video(&cam, 100, &video);
+    let truth = &seq.vignette_map;
+    let tmax = truth.iter().copied().fold(0.0f32, f32::max);
+    let inside: Vec<usize> = (0..truth.len())
+        .filter(|&i| truth[i] >= 0.05 * tmax)
+        .collect();
+    assert!(
+        inside.len() < truth.len() * 97 / 100,
+        "the corners are dark"
+    );
+    let run = |circle: CircleMode| {
+        let p = OnlineParams {
+            max_features: 150,
+            vignette_center: CenterMode::Auto,
+            image_circle: circle,
+            ..OnlineParams::default()
+        };
+        let r = photometric_online(&seq.frames, &p, &NoProgress).unwrap();
+        let fit = InverseResponse::new(r.model.inverse_256.clone()).unwrap();
+        let (alpha, _) = gamma_align(&fit, &cam.response.inverse(256));
+        let vig = r.model.vignette.clone().unwrap();
+        let map = vig.map();
+        let pick = |v: &[f32]| inside.iter().map(|&i| v[i]).collect::<Vec<f32>>();
+        let err = metrics::vignette_rmse(&pick(&map), &pick(truth), alpha);
+        (r, vig, map, err)
+    };
+    let (r, vig, map, err) = run(CircleMode::Auto);
+    let (off, _, _, err_off) = run(CircleMode::Off);
+    eprintln!(
+        "fisheye: circle {:?}, inside RMSE {err:.4} (without the circle {err_off:.4})",
+        r.image_circle
+    );
+    let c = r.image_circle.as_ref().expect("an image circle");
+    // The truth's 5 % radius along the diagonal.
+    let diag = (w as f64 / 2.0).hypot(h as f64 / 2.0);
+    let r5 = (0..1000)
+        .map(|i| f64::from(i) * diag / 1000.0)
+        .find(|&d| {
+            let x = (w as f64 / 2.0 + d * 0.8) as usize;
+            let y = (h as f64 / 2.0 + d * 0.6) as usize;
+            x < w && y < h && truth[y * w + x] < 0.05 * tmax
+        })
+        .expect("the diagonal leaves the circle");
+    // The circle ends where the recorded level falls to 5 % of the disc's: for a concave
+    // response a little beyond the linear 5 % (here by ~5 px).
+    assert!(
+        c.radius_px > r5 - 2.0 && c.radius_px < r5 + 8.0,
+        "radius {} vs {r5}",
+        c.radius_px
+    );
+    assert!(
+        (c.center[0] - w as f64 / 2.0).abs() < 3.0 && (c.center[1] - h as f64 / 2.0).abs() < 3.0,
+        "centre {:?}",
+        c.center
+    );
+    assert_eq!(r.vignette_center.center, c.center);
+    assert_eq!(
+        r.vignette_choice.model, "spline",
+        "{}",
+        r.vignette_choice.reason
+    );
+    assert!(off.image_circle.is_none());
+    // Masked beyond the circle: the corners are 0, and DSO's map writes.
+    assert!(vig.mask_radius.is_some());
+    assert_eq!(map[0], 0.0);
+    assert!(super::dso::write_vignette_png(&vig).is_ok());
+    // A short, small clip: the tuning sweep's 200-frame 320×240 fisheyes reach 0.002–0.011.
+    assert!(err < 0.025, "inside RMSE {err}");
+    assert!(err < err_off, "with the circle {err}, without {err_off}");
+    // A lens without an image circle (the reference camera's polynomial) reports none.
+    let plain = render_ae_sequence(&SynthCamera::reference(w, h, 41), 40);
+    let p = OnlineParams {
+        max_features: 150,
+        tracking_passes: 1,
+        ..OnlineParams::default()
+    };
+    let r = photometric_online(&plain.frames, &p, &NoProgress).unwrap();
+    assert!(r.image_circle.is_none());
+}

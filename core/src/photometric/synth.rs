@@ -326,6 +326,27 @@ pub enum VignetteForm {
         /// Loss at the corner, in [0, 1).
         depth: f64,
     },
+    /// A fisheye's image circle: cos⁴ fall-off (`corner_deg` the half-angle a ray at `r = 1`
+    /// would have) times a logistic border at `r = radius` of width `width` (in `r`), so the
+    /// corners outside the circle are nearly black (the lens of the offline fisheye tests).
+    FisheyeLogistic {
+        /// Half-angle at `r = 1`, degrees.
+        corner_deg: f64,
+        /// Radius of the image circle (`r` = 1 at the corner).
+        radius: f64,
+        /// Width of the border (logistic scale, in `r`).
+        width: f64,
+    },
+    /// Another image circle: `(1 − a r²)²` fall-off, flat border factor up to `inner`, then a
+    /// raised cosine that reaches exactly 0 at `outer` (black beyond).
+    FisheyeRaised {
+        /// Fall-off coefficient.
+        a: f64,
+        /// Where the border begins (`r`).
+        inner: f64,
+        /// Where the border reaches 0 (`r`).
+        outer: f64,
+    },
 }
 
 /// Scene, exposure program and vignetting of an AE video.
@@ -492,6 +513,26 @@ fn render_planes(
         VignetteForm::Mechanical { start, depth } => {
             let t = ((vm.r2(x, y) - start) / (1.0 - start)).clamp(0.0, 1.0);
             1.0 - depth * t * t * (3.0 - 2.0 * t)
+        }
+        VignetteForm::FisheyeLogistic {
+            corner_deg,
+            radius,
+            width,
+        } => {
+            let r = vm.r2(x, y).sqrt();
+            let t = r * corner_deg.to_radians().tan();
+            t.atan().cos().powi(4) / (1.0 + ((r - radius) / width).exp())
+        }
+        VignetteForm::FisheyeRaised { a, inner, outer } => {
+            let r = vm.r2(x, y).sqrt();
+            let border = if r <= inner {
+                1.0
+            } else if r >= outer {
+                0.0
+            } else {
+                0.5 * (1.0 + (std::f64::consts::PI * (r - inner) / (outer - inner)).cos())
+            };
+            (1.0 - a * r * r).max(0.0).powi(2) * border
         }
     };
     let vignette_map: Vec<f32> = (0..cam.height)

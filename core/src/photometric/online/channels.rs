@@ -294,6 +294,7 @@ fn sample_channel(
         used_tracks: seen.used_tracks,
         mean_len: seen.mean_len,
         pos,
+        mean_level: seen.mean_level.clone(),
     })
 }
 

@@ -259,6 +259,7 @@ fn with_obs(seen: &Observations, obs: Vec<Obs>) -> Observations {
         used_tracks: seen.used_tracks,
         mean_len: seen.mean_len,
         pos: Vec::new(),
+        mean_level: Vec::new(),
     }
 }
 
@@ -361,6 +362,7 @@ fn gt_obs(
         used_tracks: np as usize,
         mean_len: 0.0,
         pos: Vec::new(),
+        mean_level: Vec::new(),
     }
 }
 

@@ -33,6 +33,7 @@
 
 mod center;
 mod channels;
+mod circle;
 mod compression;
 #[cfg(test)]
 mod diag_tests;
@@ -51,6 +52,7 @@ mod vig_model;
 
 pub use center::{CenterMode, CenterReport};
 pub use channels::{ChannelResponse, Channels, photometric_online_rgb};
+pub use circle::ImageCircle;
 pub use compression::{CompressionLevel, CompressionNote, judge_compression};
 pub use levels::MeasuredLevels;
 
@@ -128,6 +130,24 @@ pub struct OnlineParams {
     /// parts; `per_part` fits the response and vignetting from all parts and gives each
     /// part's exposures relative to its own first frame (`exposure_parts` in the result).
     pub broken_tracks: BrokenTracks,
+    /// A fisheye's image circle: `auto` (default) looks for one in the video (pixels that
+    /// never recorded more than 5 % of the light the image centre did, bounded by a circle)
+    /// and, when found, masks the vignetting beyond it, takes its centre as the vignetting
+    /// centre and fits a radial spline inside it (`image_circle` in the result); `off` never
+    /// looks.
+    pub image_circle: CircleMode,
+}
+
+/// Whether `photometric_online` looks for a fisheye's image circle.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+pub enum CircleMode {
+    /// Look for it and use it when found.
+    #[default]
+    Auto,
+    /// Never look (the lens has no image circle, or the dark border is part of the scene).
+    Off,
 }
 
 /// What `photometric_online` does with a video whose tracks break into parts that share no
@@ -163,6 +183,7 @@ impl Default for OnlineParams {
             vignette_model: VignetteKind::Auto,
             tracking_passes: 2,
             broken_tracks: BrokenTracks::Refuse,
+            image_circle: CircleMode::Auto,
         }
     }
 }
@@ -252,6 +273,10 @@ pub struct OnlineResult {
     /// camera may show nothing unclipped in its top levels).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub measured_levels: Option<MeasuredLevels>,
+    /// A fisheye's image circle, when the video shows one (`image_circle: auto`): the model is
+    /// masked beyond it (V = 0, also in `vignette.png`) and centred on it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub image_circle: Option<ImageCircle>,
 }
 
 impl OnlineResult {
@@ -366,6 +391,7 @@ pub(crate) fn fit(
         used_tracks,
         mean_len,
         pos,
+        mean_level,
     } = seen;
     let parts = match params.broken_tracks {
         BrokenTracks::Refuse => {
@@ -397,25 +423,34 @@ pub(crate) fn fit(
         huber,
         progress,
     )?;
-    if center.estimated {
+    let mut center = center;
+    let image_circle = find_circle(params, &mean_level, (w, h));
+    let circle_mask = image_circle.as_ref().map(|c| {
+        let use_center = params.vignette_center != CenterMode::Fixed;
+        circle::apply(c, use_center, &mut center, &mut obs, &pos, (w, h))
+    });
+    if center.estimated || circle_mask.is_some() {
         rep = refine(&obs, &joint, &mut state, progress)?;
     }
     let response = ResponseModel::Emor { c: state.c };
     let monotone = response.is_monotone();
-    // A fisheye's tracks stay inside the image circle; the polynomial extrapolated to the dark
-    // corners may turn negative there. Mask it from where it falls to 1 % (the mask radius is
-    // in the model) instead of failing the job on an unusable `vignette.png`.
     let mut model = VignetteModel::centered(w, h, state.v);
     model.center = center.center;
+    let mask = circle_mask.map(|m| m / model.radius);
     let vignette_choice = vig_model::choose(
         params.vignette_model,
         &obs,
         &joint,
         (&mut state, &mut rep),
-        &model,
+        (&model, mask),
         progress,
     )?;
     model.spline = state.spline.clone();
+    model.mask_radius = mask;
+    // Without a circle found, a fisheye's tracks still stay inside its image circle, and the
+    // polynomial extrapolated to the dark corners may turn negative there. Mask it from where
+    // it falls to 1 % (the mask radius is in the model) instead of failing the job on an
+    // unusable `vignette.png`.
     let vignette = params.fit_vignette.then(|| {
         if model.validate().is_err() {
             model.mask_below(0.01);
@@ -448,7 +483,21 @@ pub(crate) fn fit(
         tracking_passes: 1,
         exposure_parts: parts,
         measured_levels: levels::measured_levels(&obs),
+        image_circle,
     })
+}
+
+/// The image circle of the video whose mean levels are `level` (see [`circle`]); `None` when
+/// not asked for or not found.
+fn find_circle(
+    params: &OnlineParams,
+    level: &[f32],
+    (w, h): (usize, usize),
+) -> Option<ImageCircle> {
+    if params.image_circle == CircleMode::Off || !params.fit_vignette {
+        return None;
+    }
+    circle::detect(level, w, h)
 }
 
 /// The joint refinement of response, vignetting, exposures and radiances at gauge `f(0.5)`.

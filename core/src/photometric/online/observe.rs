@@ -50,6 +50,9 @@ pub(crate) struct Observations {
     /// Image position of each observation (same order as `obs`): the vignetting centre fit
     /// and the colour channels' samples read it.
     pub pos: Vec<[f32; 2]>,
+    /// The mean normalised level each pixel recorded ([`super::circle::mean_levels`]): where
+    /// a fisheye's image circle ends. Empty when not known.
+    pub mean_level: Vec<f32>,
 }
 
 /// A frame's intensities normalised to `[0, 1]`.
@@ -162,7 +165,9 @@ pub(crate) fn observe(
         }
         prev = Some(pyr);
     }
-    samples.finish(&track_len)
+    let mut seen = samples.finish(&track_len)?;
+    seen.mean_level = super::circle::mean_levels(frames);
+    Ok(seen)
 }
 
 /// Collects the pixel samples around tracks.
@@ -300,6 +305,7 @@ impl Sampler {
             used_tracks,
             mean_len,
             pos,
+            mean_level: Vec::new(),
         })
     }
 }

@@ -25,6 +25,10 @@ use crate::progress::Progress;
 /// Spline knots, `r = 0` included (seven free values).
 pub(super) const KNOTS: usize = 8;
 
+/// Spline knots inside a fisheye's image circle (`r = 0` and the circle's radius included):
+/// its border falls from most of the light to nothing over a tenth of the radius or less.
+pub(super) const CIRCLE_KNOTS: usize = 12;
+
 /// Iteration limit of the spline stage: it starts at the polynomial's optimum, and the rest
 /// of the state moves little.
 const SPLINE_ITERATIONS: usize = 20;
@@ -60,7 +64,7 @@ pub(super) fn choose(
     obs: &[Obs],
     joint: &JointConfig,
     (state, rep): (&mut JointState, &mut JointReport),
-    model: &VignetteModel,
+    (model, circle): (&VignetteModel, Option<f64>),
     progress: &dyn Progress,
 ) -> CoreResult<VignetteChoice> {
     if !joint.fit_vignette {
@@ -77,9 +81,14 @@ pub(super) fn choose(
             ..VignetteChoice::default()
         });
     }
-    let r_max = model.max_r2().sqrt().max(1e-6);
-    let knots: Vec<f64> = (0..KNOTS)
-        .map(|j| r_max * j as f64 / (KNOTS - 1) as f64)
+    // Inside an image circle the knots span the circle only, and more of them follow its
+    // border; beyond it the model is masked.
+    let (r_max, n_knots) = match circle {
+        Some(r) => (r.max(1e-6), CIRCLE_KNOTS),
+        None => (model.max_r2().sqrt().max(1e-6), KNOTS),
+    };
+    let knots: Vec<f64> = (0..n_knots)
+        .map(|j| r_max * j as f64 / (n_knots - 1) as f64)
         .collect();
     let start = spline_through(state, knots);
     let mut cand = state.clone();
@@ -97,10 +106,14 @@ pub(super) fn choose(
         .map_or(0.0, |sp| polynomial_departure(sp, model));
     let keep = match kind {
         VignetteKind::Spline => true,
+        _ if circle.is_some() => true,
         _ => departure > AUTO_DEPARTURE && sc < pc,
     };
     let reason = match (kind, keep) {
         (VignetteKind::Spline, _) => "requested".to_string(),
+        _ if circle.is_some() => {
+            "auto: the video shows an image circle, whose border no polynomial follows".to_string()
+        }
         (_, true) => format!(
             "auto: the spline fits better and departs from every polynomial by {departure:.4} \
              RMS over the image (> {AUTO_DEPARTURE})"

@@ -114,6 +114,8 @@ impl Kind for PhotometricOnline {
             "vignette_model": r.vignette_choice.model,
             "exposure_parts": r.exposure_part_count(),
             "measured_levels": r.measured_levels,
+            // A fisheye's image circle was found (`parameters.image_circle` says where).
+            "image_circle": r.image_circle.is_some(),
             // A clip's compression (`clip.compression` says more); null for image frames.
             "clip_compression": clip.as_ref().map(|c| c.compression.level),
         });
