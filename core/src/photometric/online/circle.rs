@@ -42,6 +42,10 @@ const MIN_POINTS: usize = 24;
 const MIN_QUADRANTS: usize = 3;
 /// Largest RMS distance of the border points from the fitted circle, pixels.
 const MAX_RMS_PX: f64 = 4.0;
+/// Pixels farther than this beyond the circle must be dark ([`MIN_DARK_OUTSIDE`] of them).
+const OUTSIDE_MARGIN_PX: f64 = 3.0;
+/// See [`OUTSIDE_MARGIN_PX`].
+const MIN_DARK_OUTSIDE: f64 = 0.95;
 /// Step along the rays, pixels.
 const STEP: f64 = 0.5;
 /// Length of the band inside the dark crossing whose highest level is the disc's level, px.
@@ -219,13 +223,30 @@ pub(crate) fn detect(level: &[f32], w: usize, h: usize) -> Option<ImageCircle> {
     }
     let (center, radius, rms, used) = robust_circle(&points)?;
     let inside_frame = (0.0..w as f64).contains(&center[0]) && (0.0..h as f64).contains(&center[1]);
-    if !inside_frame || rms > MAX_RMS_PX || radius < 0.3 * half_diag || !radius.is_finite() {
+    if !inside_frame
+        || used < MIN_POINTS
+        || rms > MAX_RMS_PX
+        || radius < 0.3 * half_diag
+        || !radius.is_finite()
+    {
         return None;
     }
-    let outside = (0..h)
-        .flat_map(|y| (0..w).map(move |x| (x, y)))
-        .filter(|&(x, y)| (x as f64 - center[0]).hypot(y as f64 - center[1]) > radius)
-        .count();
+    // Everything outside must be dark: a dark scene object (a black block in a corner) can
+    // give border points on some circle, but the rest of that circle's outside is not black.
+    let (mut outside, mut dark_outside) = (0usize, 0usize);
+    for y in 0..h {
+        for x in 0..w {
+            if (x as f64 - center[0]).hypot(y as f64 - center[1]) > radius + OUTSIDE_MARGIN_PX {
+                outside += 1;
+                dark_outside += usize::from(smooth[y * w + x] < 2.0 * threshold);
+            }
+        }
+    }
+    if (outside as f64) < MIN_DARK_SHARE * (w * h) as f64
+        || (dark_outside as f64) < MIN_DARK_OUTSIDE * outside as f64
+    {
+        return None;
+    }
     Some(ImageCircle {
         center,
         radius_px: radius,
@@ -398,6 +419,16 @@ mod tests {
         assert!(detect(&level, w, h).is_none());
         // A dark object in one corner of a frame without a circle.
         let level = disc(w, h, [160.0, 120.0], 400.0, Some(([300.0, 220.0], 40.0)));
+        assert!(detect(&level, w, h).is_none());
+        // Dark blocks in two corners of a frame without a circle (a Mondrian scene).
+        let mut level = disc(w, h, [160.0, 120.0], 400.0, None);
+        for y in 0..h {
+            for x in 0..w {
+                if (x < 70 && y < 50) || (x > 260 && y > 190) {
+                    level[y * w + x] = 0.0;
+                }
+            }
+        }
         assert!(detect(&level, w, h).is_none());
         // A flat grey frame, and a black one.
         assert!(detect(&vec![0.5; w * h], w, h).is_none());
