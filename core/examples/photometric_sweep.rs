@@ -381,7 +381,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
     let lens = set == "lens";
     let scenes = set == "scenes";
     let fisheye = set == "fisheye";
-    let fisheye_eval = set == "fisheye-eval";
+    let fisheye_eval = matches!(set, "fisheye-eval" | "fisheye-eval2");
     let (seed, offset) = match set {
         "eval" => (1000 + i as u64, 17),
         "saturated" => (2000 + i as u64, 29),
@@ -401,6 +401,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         "soft-eval2" => (16_000 + i as u64, 139),
         "fisheye" => (17_000 + i as u64, 149),
         "fisheye-eval" => (18_000 + i as u64, 151),
+        "fisheye-eval2" => (19_000 + i as u64, 157),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));

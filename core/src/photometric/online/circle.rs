@@ -155,6 +155,11 @@ pub(crate) fn detect(level: &[f32], w: usize, h: usize) -> Option<ImageCircle> {
     let mut all = lev.clone();
     all.sort_by(f64::total_cmp);
     let black = all[all.len() / 200];
+    // Outside an image circle the sensor records black; a video whose darkest pixels are not
+    // near black has none (dark corners of strong vignetting are not a circle).
+    if black > CIRCLE_FRACTION * reference {
+        return None;
+    }
     let threshold = black + CIRCLE_FRACTION * (reference - black);
     let dark_share =
         lev.iter().filter(|&&v| v < threshold).count() as f64 / lev.len().max(1) as f64;
@@ -430,6 +435,14 @@ mod tests {
             }
         }
         assert!(detect(&level, w, h).is_none());
+        // Strong vignetting without a circle: the corners are dark but not black.
+        let vignetted: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f64 - 160.0, (i / w) as f64 - 120.0);
+                (0.6 * (0.15f64).powf((x * x + y * y) / 200.0f64.powi(2))) as f32
+            })
+            .collect();
+        assert!(detect(&vignetted, w, h).is_none());
         // A flat grey frame, and a black one.
         assert!(detect(&vec![0.5; w * h], w, h).is_none());
         assert!(detect(&vec![0.0; w * h], w, h).is_none());

@@ -130,11 +130,11 @@ pub struct OnlineParams {
     /// parts; `per_part` fits the response and vignetting from all parts and gives each
     /// part's exposures relative to its own first frame (`exposure_parts` in the result).
     pub broken_tracks: BrokenTracks,
-    /// A fisheye's image circle: `auto` (default) looks for one in the video (pixels that
-    /// never recorded more than 5 % of the light the image centre did, bounded by a circle)
-    /// and, when found, masks the vignetting beyond it, takes its centre as the vignetting
-    /// centre and fits a radial spline inside it (`image_circle` in the result); `off` never
-    /// looks.
+    /// A fisheye's image circle: `auto` (default) looks for one in the video's mean recorded
+    /// level (black beyond a circle, [`circle`]) and, when found, leaves out the samples
+    /// beyond it, fits a radial spline inside it and masks the vignetting beyond it
+    /// (`image_circle` in the result); with `vignette_center` `auto` or `estimated` its
+    /// centre is the vignetting centre. `off` never looks.
     pub image_circle: CircleMode,
 }
 
