@@ -42,7 +42,7 @@ pub(crate) fn contour_center(im: &PhotoImage) -> Option<[f64; 2]> {
         if pts.len() < MIN_POINTS {
             continue;
         }
-        if let Some(c) = fit_circle(&pts)
+        if let Some((c, _)) = kasa_circle(&pts)
             && c[0].is_finite()
             && c[1].is_finite()
             && c[0].abs() < 4.0 * w as f64
@@ -105,8 +105,9 @@ fn crossings(s: &[f64], w: usize, h: usize, thr: f64) -> Vec<[f64; 2]> {
 }
 
 /// Kåsa's algebraic circle fit: least squares of `x² + y² + D·x + E·y + F = 0`, centre
-/// `(−D/2, −E/2)`. Coordinates are centred on the points' mean for conditioning.
-fn fit_circle(pts: &[[f64; 2]]) -> Option<[f64; 2]> {
+/// `(−D/2, −E/2)` and radius. Coordinates are centred on the points' mean for conditioning.
+/// Also the start of the online fit's image-circle fit (`online/circle.rs`).
+pub(crate) fn kasa_circle(pts: &[[f64; 2]]) -> Option<([f64; 2], f64)> {
     let n = pts.len() as f64;
     let mx = pts.iter().map(|p| p[0]).sum::<f64>() / n;
     let my = pts.iter().map(|p| p[1]).sum::<f64>() / n;
@@ -119,7 +120,9 @@ fn fit_circle(pts: &[[f64; 2]]) -> Option<[f64; 2]> {
         b -= row * (x * x + y * y);
     }
     let sol = a.lu().solve(&b)?;
-    Some([mx - sol[0] / 2.0, my - sol[1] / 2.0])
+    let (cx, cy) = (-sol[0] / 2.0, -sol[1] / 2.0);
+    let r2 = cx * cx + cy * cy - sol[2];
+    (r2 > 0.0 && r2.is_finite()).then(|| ([mx + cx, my + cy], r2.sqrt()))
 }
 
 #[cfg(test)]

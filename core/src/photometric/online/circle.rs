@@ -27,6 +27,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::super::joint::Obs;
+use super::super::spline_center::kasa_circle;
 use super::center::{CenterReport, r2_at};
 
 /// The border: where the mean recorded level rises by this fraction of the disc's level above
@@ -296,7 +297,7 @@ fn bilinear(v: &[f64], w: usize, h: usize, x: f64, y: f64) -> f64 {
 /// RMS distance and the points kept.
 fn robust_circle(points: &[[f64; 2]]) -> Option<([f64; 2], f64, f64, usize)> {
     let mut kept: Vec<[f64; 2]> = points.to_vec();
-    let mut c = kasa(&kept)?;
+    let mut c = kasa_circle(&kept)?;
     for _ in 0..2 {
         c = geometric(&kept, c);
         let mut d: Vec<f64> = kept
@@ -329,21 +330,6 @@ fn robust_circle(points: &[[f64; 2]]) -> Option<([f64; 2], f64, f64, usize)> {
         .sum();
     let rms = (ss / kept.len() as f64).sqrt();
     Some((c.0, c.1, rms, kept.len()))
-}
-
-/// Kåsa's fit: least squares of `x² + y² + D x + E y + F = 0`.
-fn kasa(points: &[[f64; 2]]) -> Option<([f64; 2], f64)> {
-    let mut ata = nalgebra::Matrix3::<f64>::zeros();
-    let mut atb = nalgebra::Vector3::<f64>::zeros();
-    for p in points {
-        let row = nalgebra::Vector3::new(p[0], p[1], 1.0);
-        ata += row * row.transpose();
-        atb += row * -(p[0] * p[0] + p[1] * p[1]);
-    }
-    let s = ata.cholesky()?.solve(&atb);
-    let center = [-s[0] / 2.0, -s[1] / 2.0];
-    let r2 = center[0] * center[0] + center[1] * center[1] - s[2];
-    (r2 > 0.0).then(|| (center, r2.sqrt()))
 }
 
 /// Gauss-Newton on the geometric distances `|p − c| − r` from `start` (10 steps at most).
