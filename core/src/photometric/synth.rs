@@ -7,7 +7,9 @@ use super::PhotoImage;
 use super::response::{ResponseModel, interp_table};
 use super::vignette::VignetteModel;
 
+mod laws;
 mod scenes;
+pub use laws::VignetteForm;
 use scenes::{DeadLeaves, blocks, patches};
 
 /// SplitMix64 (Steele, Lea & Flood, OOPSLA 2014): a tiny deterministic generator.
@@ -300,55 +302,6 @@ pub enum SceneForm {
     Discs,
 }
 
-/// The true vignetting law.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum VignetteForm {
-    /// The camera's even polynomial ([`SynthCamera::vignette`]).
-    Polynomial,
-    /// Natural cos⁴ fall-off, `V = cos⁴(atan(r · tan θ))` with `θ` the half-angle at the
-    /// corner (not a polynomial: the model can only approximate it).
-    Cos4 {
-        /// Corner half-angle in degrees.
-        corner_deg: f64,
-    },
-    /// Gaussian fall-off `V = corner^{r²}` (`r` = 1 at the corner): another law that is not
-    /// the model's polynomial.
-    Gaussian {
-        /// Attenuation at the corner, in (0, 1].
-        corner: f64,
-    },
-    /// Mechanical vignetting (a hood, a filter ring or a lens too small for the sensor): flat
-    /// out to `r² = start`, then a smoothstep down to `1 − depth` at the corner. A plateau
-    /// with a steep shoulder, which the even polynomial follows worst of the three.
-    Mechanical {
-        /// `r²` where the fall-off begins, in [0, 1).
-        start: f64,
-        /// Loss at the corner, in [0, 1).
-        depth: f64,
-    },
-    /// A fisheye's image circle: cos⁴ fall-off (`corner_deg` the half-angle a ray at `r = 1`
-    /// would have) times a logistic border at `r = radius` of width `width` (in `r`), so the
-    /// corners outside the circle are nearly black (the lens of the offline fisheye tests).
-    FisheyeLogistic {
-        /// Half-angle at `r = 1`, degrees.
-        corner_deg: f64,
-        /// Radius of the image circle (`r` = 1 at the corner).
-        radius: f64,
-        /// Width of the border (logistic scale, in `r`).
-        width: f64,
-    },
-    /// Another image circle: `(1 − a r²)²` fall-off, flat border factor up to `inner`, then a
-    /// raised cosine that reaches exactly 0 at `outer` (black beyond).
-    FisheyeRaised {
-        /// Fall-off coefficient.
-        a: f64,
-        /// Where the border begins (`r`).
-        inner: f64,
-        /// Where the border reaches 0 (`r`).
-        outer: f64,
-    },
-}
-
 /// Scene, exposure program and vignetting of an AE video.
 #[derive(Debug, Clone, PartialEq)]
 pub struct AeVideo {
@@ -503,38 +456,7 @@ fn render_planes(
             ..cam.clone()
         })
         .collect();
-    let vig = |x: f64, y: f64| match video.vignette {
-        VignetteForm::Polynomial => vm.eval(x, y),
-        VignetteForm::Cos4 { corner_deg } => {
-            let t = vm.r2(x, y).sqrt() * corner_deg.to_radians().tan();
-            t.atan().cos().powi(4)
-        }
-        VignetteForm::Gaussian { corner } => corner.powf(vm.r2(x, y)),
-        VignetteForm::Mechanical { start, depth } => {
-            let t = ((vm.r2(x, y) - start) / (1.0 - start)).clamp(0.0, 1.0);
-            1.0 - depth * t * t * (3.0 - 2.0 * t)
-        }
-        VignetteForm::FisheyeLogistic {
-            corner_deg,
-            radius,
-            width,
-        } => {
-            let r = vm.r2(x, y).sqrt();
-            let t = r * corner_deg.to_radians().tan();
-            t.atan().cos().powi(4) / (1.0 + ((r - radius) / width).exp())
-        }
-        VignetteForm::FisheyeRaised { a, inner, outer } => {
-            let r = vm.r2(x, y).sqrt();
-            let border = if r <= inner {
-                1.0
-            } else if r >= outer {
-                0.0
-            } else {
-                0.5 * (1.0 + (std::f64::consts::PI * (r - inner) / (outer - inner)).cos())
-            };
-            (1.0 - a * r * r).max(0.0).powi(2) * border
-        }
-    };
+    let vig = |x: f64, y: f64| video.vignette.eval(&vm, x, y);
     let vignette_map: Vec<f32> = (0..cam.height)
         .flat_map(|y| (0..cam.width).map(move |x| (x as f64, y as f64)))
         .map(|(x, y)| vig(x, y) as f32)
