@@ -65,6 +65,16 @@
 //! * `soft-eval`: seeds from 15 000, `eval`'s generators through the same soft lens, held out.
 //! * `soft-eval2`: seeds from 16 000, the same again: fixed 2026-12-06 (fourth session's start,
 //!   before any choice); used once, to confirm that session's compression levels.
+//! * `fisheye`: seeds from 17 000, a fisheye's image circle (cos⁴ inside a logistic border,
+//!   centred, cutting the frame's top and bottom or only its corners); tuned on.
+//! * `fisheye-eval`, `fisheye-eval2`: seeds from 18 000 and 19 000, held out: another border
+//!   law (a raised cosine reaching black, `(1 − a r²)²` inside), off-centre by up to ±6 px per
+//!   axis, `eval`'s programs and scenes. Both have been seen (the first while the circle was
+//!   developed, the second to measure it and then to choose the centre rule).
+//! * `fisheye-eval3`: seeds from 20 000, `fisheye-eval`'s generators; `fisheye2`: seeds from
+//!   21 000, `fisheye`'s (centred). Both fixed 2026-12-06 before the centre choice of
+//!   `online/vig_stage.rs` was measured on them, each run once as shipped and once with the
+//!   image centre forced.
 //!
 //! Soft optics (2026-12-06, third session; nothing in the fit changed). Run once each on the
 //! fit as shipped, 200 frames at 320×240, 2 cores (this machine fits the shared
@@ -117,7 +127,7 @@
 //!
 //! ```text
 //! CARGO_TARGET_DIR=... cargo run -p caliper-core --release --example photometric_sweep -- \
-//!     [tuning|saturated|scripted|lens|scenes|soft|eval|eval2|…|eval9|soft-eval|shared] [cases] [frames] [width] [height]
+//!     [tuning|saturated|scripted|lens|scenes|soft|eval|eval2|…|eval9|soft-eval|fisheye…|shared] [cases] [frames] [width] [height]
 //! ```
 //!
 //! The second tracking pass (2026-12-05, evening; `online/response_match.rs`). `eval4`'s two
@@ -380,8 +390,8 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
     let scripted = set == "scripted";
     let lens = set == "lens";
     let scenes = set == "scenes";
-    let fisheye = set == "fisheye";
-    let fisheye_eval = matches!(set, "fisheye-eval" | "fisheye-eval2");
+    let fisheye = matches!(set, "fisheye" | "fisheye2");
+    let fisheye_eval = matches!(set, "fisheye-eval" | "fisheye-eval2" | "fisheye-eval3");
     let (seed, offset) = match set {
         "eval" => (1000 + i as u64, 17),
         "saturated" => (2000 + i as u64, 29),
@@ -402,6 +412,8 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         "fisheye" => (17_000 + i as u64, 149),
         "fisheye-eval" => (18_000 + i as u64, 151),
         "fisheye-eval2" => (19_000 + i as u64, 157),
+        "fisheye-eval3" => (20_000 + i as u64, 163),
+        "fisheye2" => (21_000 + i as u64, 167),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));
@@ -730,6 +742,11 @@ fn score(
                 println!(
                     "    image circle found: centre ({:.1}, {:.1}) radius {:.1} px, {} points, RMS {:.2} px",
                     c.center[0], c.center[1], c.radius_px, c.border_points, c.rms_px
+                );
+                let v = &r.vignette_center;
+                println!(
+                    "    vignetting centre ({:.1}, {:.1}): {}",
+                    v.center[0], v.center[1], v.reason
                 );
             }
             if let Some(m) = r.measured_levels {

@@ -264,24 +264,7 @@ fn c_penalties(cfg: &JointConfig, curve: &[f64]) -> Vec<(f64, [f64; EMOR_DIM])> 
 fn total_cost(obs: &[Obs], cfg: &JointConfig, s: &JointState, wsum: f64) -> f64 {
     let wpen = penalty_weight(wsum);
     let curve = emor_basis().curve(&s.c);
-    let (exposure, radiance) = (exps(&s.log_e), exps(&s.log_l));
-    // Fixed chunks summed in order: the same result on any number of threads.
-    let parts: Vec<f64> = obs
-        .par_chunks(8192)
-        .map(|chunk| {
-            chunk
-                .iter()
-                .map(|o| {
-                    let e = exposure[o.frame as usize]
-                        * s.vig(f64::from(o.r2))
-                        * radiance[o.point as usize];
-                    let r = o.residual(emor_value(&curve, e));
-                    f64::from(o.weight) * huber_rho(r, cfg.huber)
-                })
-                .sum::<f64>()
-        })
-        .collect();
-    let mut cost: f64 = parts.iter().sum();
+    let mut cost = data_cost(obs, cfg.huber, s);
     if cfg.fit_response {
         for (r, _) in c_penalties(cfg, &curve) {
             cost += wpen * r * r;
@@ -295,6 +278,30 @@ fn total_cost(obs: &[Obs], cfg: &JointConfig, s: &JointState, wsum: f64) -> f64 
         }
     }
     cost
+}
+
+/// The data term of the robust cost of `s` (Huber at `huber`), without the penalties: what
+/// two fits of the same samples under different models are compared by.
+pub(crate) fn data_cost(obs: &[Obs], huber: f64, s: &JointState) -> f64 {
+    let curve = emor_basis().curve(&s.c);
+    let (exposure, radiance) = (exps(&s.log_e), exps(&s.log_l));
+    // Fixed chunks summed in order: the same result on any number of threads.
+    let parts: Vec<f64> = obs
+        .par_chunks(8192)
+        .map(|chunk| {
+            chunk
+                .iter()
+                .map(|o| {
+                    let e = exposure[o.frame as usize]
+                        * s.vig(f64::from(o.r2))
+                        * radiance[o.point as usize];
+                    let r = o.residual(emor_value(&curve, e));
+                    f64::from(o.weight) * huber_rho(r, huber)
+                })
+                .sum::<f64>()
+        })
+        .collect();
+    parts.iter().sum()
 }
 
 /// `exp` of each log value: once per frame or point instead of once per sample.

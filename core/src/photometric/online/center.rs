@@ -46,7 +46,8 @@ pub enum CenterMode {
     /// Estimate it, and keep the estimate only when the data constrain it (σ small, tracks
     /// spread over the image) and it differs significantly from the image centre.
     Auto,
-    /// Keep it at the image centre (DSO's model; the default).
+    /// Keep it at the image centre (DSO's model; the default). With a fisheye's image circle
+    /// found, the circle's centre is fitted too and kept when it explains the samples better.
     #[default]
     Fixed,
     /// Always use the estimate (unless the fit fails).

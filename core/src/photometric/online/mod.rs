@@ -49,6 +49,7 @@ mod observe;
 mod response_match;
 mod similarity;
 mod vig_model;
+mod vig_stage;
 
 pub use center::{CenterMode, CenterReport};
 pub use channels::{ChannelResponse, Channels, photometric_online_rgb};
@@ -61,7 +62,6 @@ use serde::{Deserialize, Serialize};
 use super::flat::VignetteKind;
 use super::joint::{JointConfig, JointState, Obs, gauge_start, refine};
 use super::response::ResponseModel;
-use super::vignette::VignetteModel;
 use super::{FitDiagnostics, PHOTOMETRIC_SCHEMA, PhotoImage, PhotometricModel, check_stack};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
@@ -107,7 +107,9 @@ pub struct OnlineParams {
     /// `luma` (default): one response for the luma of the frames; `rgb`: one response per
     /// colour channel with exposures and vignetting shared (colour frames only).
     pub channels: Channels,
-    /// Vignetting centre: `fixed` (default) keeps the image centre (DSO's model); `auto`
+    /// Vignetting centre: `fixed` (default) keeps the image centre (DSO's model), except that
+    /// with an image circle found its centre is fitted too and kept when it explains the
+    /// samples better (`vig_stage`); `auto`
     /// estimates it and keeps the estimate when the data constrain it; `estimated` always
     /// uses the estimate. Experimental: on the synthetic tests the estimate can be biased by
     /// tens of pixels under mostly translational motion (see `center`).
@@ -134,7 +136,8 @@ pub struct OnlineParams {
     /// level (black beyond a circle, [`circle`]) and, when found, leaves out the samples
     /// beyond it, fits a radial spline inside it and masks the vignetting beyond it
     /// (`image_circle` in the result); with `vignette_center` `auto` or `estimated` its
-    /// centre is the vignetting centre. `off` never looks.
+    /// centre is the vignetting centre, with `fixed` the better of it and the image centre.
+    /// `off` never looks.
     pub image_circle: CircleMode,
 }
 
@@ -423,30 +426,23 @@ pub(crate) fn fit(
         huber,
         progress,
     )?;
-    let mut center = center;
     let image_circle = find_circle(params, &mean_level, (w, h));
-    let circle_mask = image_circle.as_ref().map(|c| {
-        let use_center = params.vignette_center != CenterMode::Fixed;
-        circle::apply(c, use_center, &mut center, &mut obs, &pos, (w, h))
-    });
-    if center.estimated || circle_mask.is_some() {
-        rep = refine(&obs, &joint, &mut state, progress)?;
-    }
-    let response = ResponseModel::Emor { c: state.c };
-    let monotone = response.is_monotone();
-    let mut model = VignetteModel::centered(w, h, state.v);
-    model.center = center.center;
-    let mask = circle_mask.map(|m| m / model.radius);
-    let vignette_choice = vig_model::choose(
-        params.vignette_model,
-        &obs,
+    let vig_stage::Stage {
+        response,
+        mut model,
+        choice: vignette_choice,
+        center,
+    } = vig_stage::fit(
+        params,
+        image_circle.as_ref(),
+        (&mut obs, &pos),
         &joint,
         (&mut state, &mut rep),
-        (&model, mask),
+        center,
+        (w, h),
         progress,
     )?;
-    model.spline = state.spline.clone();
-    model.mask_radius = mask;
+    let monotone = response.is_monotone();
     // Without a circle found, a fisheye's tracks still stay inside its image circle, and the
     // polynomial extrapolated to the dark corners may turn negative there. Mask it from where
     // it falls to 1 % (the mask radius is in the model) instead of failing the job on an

@@ -1,0 +1,166 @@
+//! The vignetting stage of the online fit: the image circle's mask and centre, then the
+//! choice of model ([`vig_model`]).
+//!
+//! With `vignette_center: fixed` (the default) and an image circle found, the circle's centre
+//! is a second candidate for the vignetting centre. A circular fisheye's image circle is the
+//! field stop's image, centred on the optical axis, and so is its vignetting; a fisheye
+//! mounted off the sensor's centre by a few pixels leaves the image centre's fit with
+//! vignetting errors of several per cent at the steep border. The circle's centre, read from
+//! the mean levels, is itself off by up to a few pixels where the scene near the border is
+//! uneven (see [`circle`]), which on a centred lens is worse than the image centre. So both
+//! are fitted, and the one whose fit explains the samples better is kept; the comparison runs
+//! over the samples both fits use (inside the image centre's mask), so that neither wins by
+//! leaving samples out.
+
+use super::super::joint::{JointConfig, JointReport, JointState, Obs, data_cost, refine};
+use super::super::response::ResponseModel;
+use super::super::vignette::VignetteModel;
+use super::OnlineParams;
+use super::center::{CenterMode, CenterReport};
+use super::circle::{self, ImageCircle};
+use super::vig_model::{self, VignetteChoice};
+use crate::error::CoreResult;
+use crate::progress::Progress;
+
+/// What the stage hands back: the vignetting model (spline and mask included), why that
+/// model, and the centre it is about.
+pub(super) struct Stage {
+    /// The response before the model choice (the spline stage's refit does not replace it).
+    pub response: ResponseModel,
+    pub model: VignetteModel,
+    pub choice: VignetteChoice,
+    pub center: CenterReport,
+}
+
+/// Runs the stage on `obs` (positions `pos`) from the polynomial fit `state`, `rep`; leaves
+/// `obs`, `state` and `rep` as the kept fit has them.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn fit(
+    params: &OnlineParams,
+    image_circle: Option<&ImageCircle>,
+    (obs, pos): (&mut Vec<Obs>, &[[f32; 2]]),
+    joint: &JointConfig,
+    (state, rep): (&mut JointState, &mut JointReport),
+    center: CenterReport,
+    (w, h): (usize, usize),
+    progress: &dyn Progress,
+) -> CoreResult<Stage> {
+    let Some(c) = image_circle else {
+        return candidate(
+            params,
+            None,
+            (obs, pos),
+            joint,
+            (state, rep),
+            center,
+            (w, h),
+            progress,
+        );
+    };
+    if params.vignette_center != CenterMode::Fixed {
+        let opt = Some((c, true));
+        return candidate(
+            params,
+            opt,
+            (obs, pos),
+            joint,
+            (state, rep),
+            center,
+            (w, h),
+            progress,
+        );
+    }
+    let (mut obs_b, mut state_b, mut rep_b) = (obs.clone(), state.clone(), rep.clone());
+    let fixed = candidate(
+        params,
+        Some((c, false)),
+        (obs, pos),
+        joint,
+        (state, rep),
+        center.clone(),
+        (w, h),
+        progress,
+    )?;
+    let circled = candidate(
+        params,
+        Some((c, true)),
+        (&mut obs_b, pos),
+        joint,
+        (&mut state_b, &mut rep_b),
+        center,
+        (w, h),
+        progress,
+    )?;
+    // Both fits scored on the image centre's samples (a subset of the circle's).
+    let common: Vec<Obs> = obs_b
+        .iter()
+        .zip(obs.iter())
+        .map(|(b, a)| Obs {
+            weight: a.weight,
+            ..*b
+        })
+        .collect();
+    let cost_fixed = data_cost(obs, joint.huber, state);
+    let cost_circle = data_cost(&common, joint.huber, &state_b);
+    if cost_circle < cost_fixed {
+        *obs = obs_b;
+        *state = state_b;
+        *rep = rep_b;
+        let mut stage = circled;
+        stage.center.reason = format!(
+            "{}; kept over the image centre, whose fit explains the samples inside both masks \
+             less well (robust cost {cost_fixed:.4} against {cost_circle:.4})",
+            stage.center.reason
+        );
+        Ok(stage)
+    } else {
+        let mut stage = fixed;
+        stage.center.reason = format!(
+            "{}; the image circle's centre ({:.1}, {:.1}) was fitted too and explains the \
+             samples inside both masks less well (robust cost {cost_circle:.4} against \
+             {cost_fixed:.4})",
+            stage.center.reason, c.center[0], c.center[1]
+        );
+        Ok(stage)
+    }
+}
+
+/// One fit of the stage: with `circle` (and whether its centre is the vignetting centre) the
+/// samples beyond it are left out and the joint problem refitted, then the model is chosen.
+#[allow(clippy::too_many_arguments)]
+fn candidate(
+    params: &OnlineParams,
+    circle: Option<(&ImageCircle, bool)>,
+    (obs, pos): (&mut Vec<Obs>, &[[f32; 2]]),
+    joint: &JointConfig,
+    (state, rep): (&mut JointState, &mut JointReport),
+    mut center: CenterReport,
+    (w, h): (usize, usize),
+    progress: &dyn Progress,
+) -> CoreResult<Stage> {
+    let circle_mask =
+        circle.map(|(c, use_center)| circle::apply(c, use_center, &mut center, obs, pos, (w, h)));
+    if center.estimated || circle_mask.is_some() {
+        *rep = refine(obs, joint, state, progress)?;
+    }
+    let response = ResponseModel::Emor { c: state.c };
+    let mut model = VignetteModel::centered(w, h, state.v);
+    model.center = center.center;
+    let mask = circle_mask.map(|m| m / model.radius);
+    let choice = vig_model::choose(
+        params.vignette_model,
+        obs,
+        joint,
+        (state, rep),
+        (&model, mask),
+        progress,
+    )?;
+    model.spline = state.spline.clone();
+    model.mask_radius = mask;
+    Ok(Stage {
+        response,
+        model,
+        choice,
+        center,
+    })
+}
