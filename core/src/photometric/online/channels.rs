@@ -168,9 +168,21 @@ pub fn photometric_online_rgb(
     let center = result.vignette_center.center;
     let rad = (w as f64 / 2.0).hypot(h as f64 / 2.0);
     let huber = params.huber_levels / 255.0;
+    // Beyond a fisheye's image circle the vignetting is masked: green's samples there were
+    // left out of the fit, and so are red's and blue's.
+    let mask_r2 = result
+        .model
+        .vignette
+        .as_ref()
+        .and_then(|m| m.mask_radius)
+        .filter(|_| result.image_circle.is_some())
+        .map(|m| (m * m) as f32);
     let fit_other = |name: &str, mut seen: Observations| {
         for (o, &p) in seen.obs.iter_mut().zip(&seen.pos) {
             o.r2 = r2_at(p, center, rad);
+            if mask_r2.is_some_and(|m| o.r2 > m) {
+                o.weight = 0.0;
+            }
         }
         fit_fixed(
             name,
