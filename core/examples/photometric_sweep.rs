@@ -75,6 +75,9 @@
 //!   21 000, `fisheye`'s (centred). Both fixed 2026-12-06 before the centre choice of
 //!   `online/vig_stage.rs` was measured on them, each run once as shipped and once with the
 //!   image centre forced.
+//! * `fisheye-eval4`: seeds from 22 000, `fisheye-eval`'s generators, fixed 2026-12-06 before
+//!   the 18 spline knots inside the circle (`vig_model::CIRCLE_KNOTS`, chosen on `fisheye` and
+//!   `fisheye-eval`) were measured on it, run once with 18 and once with the 12 before.
 //!
 //! Soft optics (2026-12-06, third session; nothing in the fit changed). Run once each on the
 //! fit as shipped, 200 frames at 320×240, 2 cores (this machine fits the shared
@@ -391,7 +394,10 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
     let lens = set == "lens";
     let scenes = set == "scenes";
     let fisheye = matches!(set, "fisheye" | "fisheye2");
-    let fisheye_eval = matches!(set, "fisheye-eval" | "fisheye-eval2" | "fisheye-eval3");
+    let fisheye_eval = matches!(
+        set,
+        "fisheye-eval" | "fisheye-eval2" | "fisheye-eval3" | "fisheye-eval4"
+    );
     let (seed, offset) = match set {
         "eval" => (1000 + i as u64, 17),
         "saturated" => (2000 + i as u64, 29),
@@ -414,6 +420,7 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         "fisheye-eval2" => (19_000 + i as u64, 157),
         "fisheye-eval3" => (20_000 + i as u64, 163),
         "fisheye2" => (21_000 + i as u64, 167),
+        "fisheye-eval4" => (22_000 + i as u64, 173),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));
