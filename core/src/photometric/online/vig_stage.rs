@@ -45,31 +45,23 @@ pub(super) fn fit(
     (w, h): (usize, usize),
     progress: &dyn Progress,
 ) -> CoreResult<Stage> {
-    let Some(c) = image_circle else {
-        return candidate(
-            params,
-            None,
-            (obs, pos),
-            joint,
-            (state, rep),
-            center,
-            (w, h),
-            progress,
-        );
+    // One fit unless the circle's centre competes with the image centre (`fixed`).
+    let c = match image_circle {
+        Some(c) if params.vignette_center == CenterMode::Fixed => c,
+        other => {
+            let circle = other.map(|c| (c, true));
+            return candidate(
+                params,
+                circle,
+                (obs, pos),
+                joint,
+                (state, rep),
+                center,
+                (w, h),
+                progress,
+            );
+        }
     };
-    if params.vignette_center != CenterMode::Fixed {
-        let opt = Some((c, true));
-        return candidate(
-            params,
-            opt,
-            (obs, pos),
-            joint,
-            (state, rep),
-            center,
-            (w, h),
-            progress,
-        );
-    }
     let (mut obs_b, mut state_b, mut rep_b) = (obs.clone(), state.clone(), rep.clone());
     let fixed = candidate(
         params,
