@@ -38,10 +38,14 @@ use super::super::response::ResponseModel;
 use super::super::spline::RadialSpline;
 use super::super::{PhotoImage, check_stack};
 use super::center::r2_at;
+use super::circle;
 use super::gauge::{GaugeContext, OtherChannel};
 use super::klt::Level;
 use super::response_match::{ResponseMatch, recoverable};
-use super::{GRAD_HALF_WEIGHT, Observations, OnlineParams, OnlineResult, first_look, fit, observe};
+use super::{
+    GRAD_HALF_WEIGHT, Observations, OnlineParams, OnlineResult, find_circle, first_look, fit,
+    observe,
+};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
 
@@ -122,10 +126,11 @@ pub fn photometric_online_rgb(
     let mut seen = observe(&luma, params, w, h, None, progress)?;
     let mut passes = 1;
     for pass in 2..=params.tracking_passes {
-        let again = first_look(frames.len(), &seen, params, progress).and_then(|response| {
-            let rm = ResponseMatch::new(&response);
-            observe(&luma, params, w, h, Some(&rm), progress)
-        });
+        let again =
+            first_look(frames.len(), (w, h), &seen, params, progress).and_then(|response| {
+                let rm = ResponseMatch::new(&response);
+                observe(&luma, params, w, h, Some(&rm), progress)
+            });
         match again {
             Ok(next) => (seen, passes) = (next, pass),
             Err(e) if recoverable(&e) => break,
@@ -136,9 +141,17 @@ pub fn photometric_online_rgb(
     let r = sample_channel(frames, 0, &seen, params, progress)?;
     let g = sample_channel(frames, 1, &seen, params, progress)?;
     let b = sample_channel(frames, 2, &seen, params, progress)?;
-    // Red and blue take part in choosing the shared gauge (see `gauge`).
-    let others = [&r, &b].map(|o| OtherChannel {
-        obs: &o.obs,
+    // Red and blue take part in choosing the shared gauge (see `gauge`), with a fisheye's
+    // border left out as for green (`circle::gauge_samples`).
+    let image_circle = find_circle(params, &g.mean_level, (w, h));
+    let interior = |o: &Observations| {
+        image_circle
+            .as_ref()
+            .map(|c| circle::gauge_samples(c, &o.obs, &o.pos))
+    };
+    let (r_in, b_in) = (interior(&r), interior(&b));
+    let others = [(&r, &r_in), (&b, &b_in)].map(|(o, inside)| OtherChannel {
+        obs: inside.as_deref().unwrap_or(&o.obs),
         n_points: o.n_points as usize,
     });
     let mut result = fit(

@@ -311,7 +311,7 @@ pub fn photometric_online(
     if params.tracking_passes == 1 {
         return fit(nf, w, h, seen, params, GaugeContext::default(), progress);
     }
-    let first = first_look(nf, &seen, params, progress)?;
+    let first = first_look(nf, (w, h), &seen, params, progress)?;
     let rm = ResponseMatch::new(&first);
     let next = match observe(frames, params, w, h, Some(&rm), progress) {
         Ok(next) => next,
@@ -352,6 +352,7 @@ pub fn photometric_online(
 /// of 10.6 s on the sweep's `lens#7`).
 pub(crate) fn first_look(
     nf: usize,
+    (w, h): (usize, usize),
     seen: &Observations,
     params: &OnlineParams,
     progress: &dyn Progress,
@@ -361,6 +362,10 @@ pub(crate) fn first_look(
         linked::require_linked(obs, nf)?;
     }
     let huber = params.huber_levels / 255.0;
+    // A fisheye's border is left out of the gauge's choice (see `circle::gauge_samples`).
+    let interior = find_circle(params, &seen.mean_level, (w, h))
+        .map(|c| circle::gauge_samples(&c, obs, &seen.pos));
+    let obs = interior.as_deref().unwrap_or(obs);
     let mut state = start(nf, obs, n_points, huber, progress)?;
     let gauge = place_in_gauge(
         obs,
@@ -404,10 +409,16 @@ pub(crate) fn fit(
         BrokenTracks::PerPart => linked::part_labels(&obs, nf),
     };
     let huber = params.huber_levels / 255.0;
-    let mut state = start(nf, &obs, n_points as usize, huber, progress)?;
+    let image_circle = find_circle(params, &mean_level, (w, h));
+    // A fisheye's border is left out of the gauge's choice (see `circle::gauge_samples`).
+    let interior = image_circle
+        .as_ref()
+        .map(|c| circle::gauge_samples(c, &obs, &pos));
+    let gauge_obs = interior.as_deref().unwrap_or(&obs);
+    let mut state = start(nf, gauge_obs, n_points as usize, huber, progress)?;
     let mut initial: Vec<f64> = state.log_e.iter().map(|l| l.exp()).collect();
     let gamma_gauge = place_in_gauge(
-        &obs,
+        gauge_obs,
         n_points as usize,
         &mut state,
         params,
@@ -426,7 +437,7 @@ pub(crate) fn fit(
         huber,
         progress,
     )?;
-    let image_circle = find_circle(params, &mean_level, (w, h));
+    drop(interior);
     let vig_stage::Stage {
         response,
         mut model,
@@ -485,7 +496,7 @@ pub(crate) fn fit(
 
 /// The image circle of the video whose mean levels are `level` (see [`circle`]); `None` when
 /// not asked for or not found.
-fn find_circle(
+pub(super) fn find_circle(
     params: &OnlineParams,
     level: &[f32],
     (w, h): (usize, usize),
