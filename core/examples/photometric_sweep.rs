@@ -333,8 +333,8 @@ use std::time::Instant;
 use caliper_core::io::ImageLimits;
 use caliper_core::photometric::dso::read_vignette_png;
 use caliper_core::photometric::metrics::{
-    exposure_error_common_pct, exposure_error_parts_pct, exposure_error_pct, gamma_align,
-    vignette_rmse,
+    aligned_maps, exposure_error_common_pct, exposure_error_parts_pct, exposure_error_pct,
+    gamma_align, vignette_rmse,
 };
 use caliper_core::photometric::synth::{
     AeVideo, ExposureProgram, Rng, SceneForm, SynthCamera, VignetteForm, clipped_fraction,
@@ -876,24 +876,14 @@ fn vignette_rmse_inside(fit: &[f32], truth: &[f32], alpha: f64) -> f64 {
 /// (both maps normalised to maximum 1 as [`vignette_rmse`] does), so that a miss shows whether
 /// it lies on the border or inside: per band the pixel count, RMSE and mean signed error.
 fn print_error_by_level(fit: &[f32], truth: &[f32], alpha: f64) {
-    let f: Vec<f64> = fit
-        .iter()
-        .map(|&v| f64::from(v).max(0.0).powf(alpha))
-        .collect();
-    let fm = f.iter().copied().fold(0.0, f64::max).max(1e-300);
-    let tm = truth
-        .iter()
-        .map(|&v| f64::from(v))
-        .fold(0.0, f64::max)
-        .max(1e-300);
+    let (f, t) = aligned_maps(fit, truth, alpha);
     let bands = [0.0, 0.25, 0.5, 0.8, 1.01];
     let mut out = Vec::new();
     for b in bands.windows(2) {
         let (mut n, mut s2, mut s1) = (0usize, 0.0, 0.0);
-        for (fv, &t) in f.iter().zip(truth) {
-            let t = f64::from(t) / tm;
+        for (&fv, &t) in f.iter().zip(&t) {
             if t >= b[0] && t < b[1] {
-                let e = fv / fm - t;
+                let e = fv - t;
                 n += 1;
                 s2 += e * e;
                 s1 += e;

@@ -47,6 +47,13 @@ pub fn gamma_align(fit: &InverseResponse, truth: &InverseResponse) -> (f64, f64)
 /// RMSE between two attenuation maps after raising `fit` to `alpha` and normalising both to
 /// maximum 1.
 pub fn vignette_rmse(fit: &[f32], truth: &[f32], alpha: f64) -> f64 {
+    let (a, b) = aligned_maps(fit, truth, alpha);
+    rmse(&a, &b)
+}
+
+/// The two attenuation maps as [`vignette_rmse`] compares them: `fit` raised to `alpha`, both
+/// normalised to maximum 1.
+pub fn aligned_maps(fit: &[f32], truth: &[f32], alpha: f64) -> (Vec<f64>, Vec<f64>) {
     let f: Vec<f64> = fit
         .iter()
         .map(|&v| f64::from(v).max(0.0).powf(alpha))
@@ -59,7 +66,7 @@ pub fn vignette_rmse(fit: &[f32], truth: &[f32], alpha: f64) -> f64 {
         .max(1e-300);
     let a: Vec<f64> = f.iter().map(|v| v / fm).collect();
     let b: Vec<f64> = truth.iter().map(|&v| f64::from(v) / tm).collect();
-    rmse(&a, &b)
+    (a, b)
 }
 
 /// RMS relative error (in %) of exposure ratios to frame 0 after raising `fit` to `alpha`.
