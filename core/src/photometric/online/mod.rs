@@ -437,7 +437,6 @@ pub(crate) fn fit(
         huber,
         progress,
     )?;
-    drop(interior);
     let vig_stage::Stage {
         response,
         mut model,
