@@ -414,9 +414,14 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
     let fisheye = matches!(set, "fisheye" | "fisheye2" | "fisheye3");
     let fisheye_eval = matches!(
         set,
-        "fisheye-eval" | "fisheye-eval2" | "fisheye-eval3" | "fisheye-eval4" | "fisheye-eval5"
+        "fisheye-eval"
+            | "fisheye-eval2"
+            | "fisheye-eval3"
+            | "fisheye-eval4"
+            | "fisheye-eval5"
+            | "fisheye-eval6"
     );
-    let fisheye_erf = set == "fisheye-erf";
+    let fisheye_erf = matches!(set, "fisheye-erf" | "fisheye-erf2" | "fisheye-erf3");
     let (seed, offset) = match set {
         "eval" => (1000 + i as u64, 17),
         "saturated" => (2000 + i as u64, 29),
@@ -443,6 +448,9 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         "fisheye-erf" => (23_000 + i as u64, 179),
         "fisheye-eval5" => (24_000 + i as u64, 181),
         "fisheye3" => (25_000 + i as u64, 191),
+        "fisheye-erf2" => (26_000 + i as u64, 193),
+        "fisheye-eval6" => (27_000 + i as u64, 197),
+        "fisheye-erf3" => (28_000 + i as u64, 199),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));
