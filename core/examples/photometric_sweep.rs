@@ -320,8 +320,10 @@
 //!
 //! `SWEEP_PARAMS='{"gamma_gauge": 0.5}'` (any `OnlineParams` JSON) runs the old fixed gauge
 //! `f(0.5) = 0.5` for comparison. `SWEEP_FRAMES=1` prints the first frames' exposure errors
-//! against the best common scale (`SWEEP_ALL=1`: also every 10th frame); `SWEEP_DEBUG=1` prints
-//! each case's camera and video settings (to rebuild it in a diagnostic); `SWEEP_DUMP=DIR` writes
+//! against the best common scale, each after `@` the frame's true exposure (`SWEEP_ALL=1`: also
+//! every 10th frame; an error that follows the frame index and not the exposure is a drift along
+//! the track chain); `SWEEP_DEBUG=1` prints each case's camera and video settings and the true
+//! vignetting centre (to rebuild it in a diagnostic); `SWEEP_DUMP=DIR` writes
 //! each case's first frame as a PNG. `shared` runs the
 //! shared `ae_seq_seed0` (from `CALIPER_PHOTO_DATA`, default `../shared/data/photometric`)
 //! instead; with `SWEEP_CLIP=clip.mp4` (and `--features video`) it fits the frames of an
@@ -774,7 +776,7 @@ fn score(
                     .filter(|(i, _)| {
                         *i < 8 || (std::env::var_os("SWEEP_ALL").is_some() && i % 10 == 0)
                     })
-                    .map(|(_, x)| format!("{:+.1}%", 100.0 * (x - mean).exp_m1()))
+                    .map(|(i, x)| format!("{:+.1}%@{:.2}", 100.0 * (x - mean).exp_m1(), truth_e[i]))
                     .collect();
                 println!("    first frames vs common scale: {}", per.join(" "));
             }
@@ -1111,7 +1113,14 @@ fn main() {
             video
         };
         if std::env::var_os("SWEEP_DEBUG").is_some() {
-            eprintln!("{name}\n  {cam:?}\n  {video:?}");
+            let c = [
+                width as f64 / 2.0 + video.vignette_shift[0],
+                height as f64 / 2.0 + video.vignette_shift[1],
+            ];
+            eprintln!(
+                "{name}\n  {cam:?}\n  {video:?}\n  true vignetting centre ({:.2}, {:.2})",
+                c[0], c[1]
+            );
         }
         let seq = render_ae_video(&cam, frames, &video);
         if let (Ok(dir), Some(f)) = (std::env::var("SWEEP_DUMP"), seq.frames.first()) {

@@ -175,11 +175,11 @@ impl JointState {
 /// tracks never reach (the corners of a fisheye, the ring outside a small scene) it carries
 /// the curve on linearly; where they do it is negligible against the data (a kink of 0.05
 /// adds 0.04 % to the data cost at 2 levels of noise).
-const SPLINE_SMOOTHING: f64 = 1e-5;
+pub(crate) const SPLINE_SMOOTHING: f64 = 1e-5;
 
 /// Second differences of the spline's values (the smoothness penalty), each with its sparse
 /// gradient in the free values (value `j` is free parameter `j − 1`; value 0 is fixed at 1).
-fn spline_penalties(s: &RadialSpline) -> Vec<(f64, Vec<(usize, f64)>)> {
+pub(crate) fn spline_penalties(s: &RadialSpline) -> Vec<(f64, Vec<(usize, f64)>)> {
     let v = &s.values;
     (1..v.len().saturating_sub(1))
         .map(|j| {

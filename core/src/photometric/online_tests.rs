@@ -375,7 +375,13 @@ fn online_calibration_masks_a_fisheye_image_circle() {
         "centre {:?}",
         c.center
     );
-    assert_eq!(r.vignette_center.center, c.center);
+    // The vignetting centre starts at the circle's and the spline fit refines it
+    // (`vig_stage::refit_center`): 1.1 px from the truth here, the circle's 0.9 px.
+    let vc = r.vignette_center.center;
+    assert!(
+        (vc[0] - w as f64 / 2.0).hypot(vc[1] - h as f64 / 2.0) < 2.0,
+        "vignetting centre {vc:?}"
+    );
     assert_eq!(
         r.vignette_choice.model, "spline",
         "{}",
@@ -401,9 +407,11 @@ fn online_calibration_masks_a_fisheye_image_circle() {
 }
 
 /// A fisheye mounted off the sensor's centre, with the default `vignette_center: fixed`: the
-/// image circle's centre is fitted beside the image centre and kept because it explains the
-/// samples better; the map inside the circle is then about as close to the truth as with the
-/// circle's centre asked for (`auto`), and much closer than without the circle.
+/// vignetting centre starts at the image circle's and the spline fit refines it; the map
+/// inside the circle is then as close to the truth as with `auto`, and much closer than
+/// without the circle. On this small sequence (200×150, 100 frames, 150 features) the refit
+/// moves the centre from 0.5 px to 1.9 px off the truth and the map from 0.0095 to 0.0188
+/// RMS (see the README's limits); on the sweep's 320×240 sequences it mostly helps.
 #[test]
 fn online_calibration_keeps_an_off_centre_image_circles_centre() {
     use super::synth::{AeVideo, VignetteForm, render_ae_video};
@@ -456,11 +464,13 @@ fn online_calibration_keeps_an_off_centre_image_circles_centre() {
         c.center
     );
     assert!(r.vignette_center.estimated, "{}", r.vignette_center.reason);
-    assert_eq!(r.vignette_center.center, c.center);
+    let vc = r.vignette_center.center;
     assert!(
-        r.vignette_center
-            .reason
-            .contains("kept over the image centre"),
+        (vc[0] - truth_centre[0]).hypot(vc[1] - truth_centre[1]) < 2.5,
+        "vignetting centre {vc:?}"
+    );
+    assert!(
+        r.vignette_center.reason.contains("refined by the fit"),
         "{}",
         r.vignette_center.reason
     );
@@ -478,7 +488,7 @@ fn online_calibration_keeps_an_off_centre_image_circles_centre() {
 /// response from the spline stage: α 0.98, response 0.0014, vignette 0.015 inside the circle.
 #[test]
 fn online_calibration_chooses_the_gauge_inside_a_fisheye_border() {
-    use super::synth::{AeVideo, ExposureProgram, SceneForm, VignetteForm, render_ae_video};
+    use super::synth::{AeVideo, ExposureProgram, SceneForm, VignetteForm};
     let (w, h) = (320, 240);
     let cam = SynthCamera {
         response: ResponseModel::Emor {
@@ -505,7 +515,22 @@ fn online_calibration_chooses_the_gauge_inside_a_fisheye_border() {
         vignette_shift: [-4.66, -2.31],
         ..AeVideo::default()
     };
-    let seq = render_ae_video(&cam, 200, &video);
+    let (r, alpha, resp, vig) = fit_fisheye(&cam, &video);
+    eprintln!(
+        "raised-cosine fisheye: α {alpha:.3}, response {resp:.4}, vignette inside {vig:.4}, \
+         circle {:?}",
+        r.image_circle
+    );
+    assert!(r.image_circle.is_some(), "an image circle");
+    assert!(alpha.ln().abs() < 0.1, "gauge off: α {alpha}");
+    assert!(resp < 0.004, "response RMSE {resp}");
+    assert!(vig < 0.02, "vignette RMSE inside the circle {vig}");
+}
+
+/// A 200-frame `video` of `cam` fitted with the defaults: the result, the gauge α, the response
+/// RMSE after aligning it, and the vignette RMSE inside the true image circle (5 % of the peak).
+fn fit_fisheye(cam: &SynthCamera, video: &super::synth::AeVideo) -> (OnlineResult, f64, f64, f64) {
+    let seq = super::synth::render_ae_video(cam, 200, video);
     let truth = &seq.vignette_map;
     let tmax = truth.iter().copied().fold(0.0f32, f32::max);
     let inside: Vec<usize> = (0..truth.len())
@@ -517,13 +542,56 @@ fn online_calibration_chooses_the_gauge_inside_a_fisheye_border() {
     let map = r.model.vignette.as_ref().unwrap().map();
     let pick = |v: &[f32]| inside.iter().map(|&i| v[i]).collect::<Vec<f32>>();
     let vig = metrics::vignette_rmse(&pick(&map), &pick(truth), alpha);
+    (r, alpha, resp, vig)
+}
+
+/// A fisheye mounted off the sensor's centre by (1.5, 7.0) px with a wide defocused border
+/// (the sweep's `fisheye-erf#6`): the image circle read from the mean levels is centred
+/// 4 px from the truth (the scene near the border is uneven), and a radial model about that
+/// centre left the vignetting 0.024 RMS off inside the circle (the sweep's run). The centre
+/// refitted with the spline (`vig_stage::refit_center`) lands 0.8 px from the truth and the
+/// vignetting at 0.0046.
+#[test]
+fn online_calibration_refits_a_fisheye_centre_the_circle_misses() {
+    use super::synth::{AeVideo, ExposureProgram, SceneForm, VignetteForm};
+    let (w, h) = (320, 240);
+    let cam = SynthCamera {
+        response: ResponseModel::Emor {
+            c: [-0.9809, -0.4685, 0.4253, -0.0866],
+        },
+        vignette: [-0.3793, 0.0347, -0.0228],
+        ..SynthCamera::reference(w, h, 23_006)
+    };
+    let video = AeVideo {
+        program: ExposureProgram::Sweep {
+            stops: 1.432,
+            period: 99.0,
+            flicker: 0.03,
+        },
+        scene: SceneForm::Patches,
+        mid: 0.0873,
+        stops: 7.16,
+        speed: 0.966,
+        vignette: VignetteForm::FisheyeErf {
+            corner_deg: 53.15,
+            radius: 0.753,
+            width: 0.0599,
+        },
+        vignette_shift: [1.472, 7.040],
+        ..AeVideo::default()
+    };
+    let (r, alpha, resp, vig) = fit_fisheye(&cam, &video);
+    let c = r.vignette_center.center;
+    let truth_c = [160.0 + 1.472, 120.0 + 7.040];
+    let off = (c[0] - truth_c[0]).hypot(c[1] - truth_c[1]);
+    let circle = r.image_circle.as_ref().expect("an image circle");
+    let circle_off = (circle.center[0] - truth_c[0]).hypot(circle.center[1] - truth_c[1]);
     eprintln!(
-        "raised-cosine fisheye: α {alpha:.3}, response {resp:.4}, vignette inside {vig:.4}, \
-         circle {:?}",
-        r.image_circle
+        "off-centre erf fisheye: centre {c:?} ({off:.2} px off; circle {circle_off:.2} px), \
+         α {alpha:.3}, response {resp:.4}, vignette inside {vig:.4}"
     );
-    assert!(r.image_circle.is_some(), "an image circle");
-    assert!(alpha.ln().abs() < 0.1, "gauge off: α {alpha}");
+    assert!(circle_off > 2.0, "the circle alone is {circle_off} px off");
+    assert!(off < 1.0, "vignetting centre {off} px from the truth");
+    assert!(vig < 0.008, "vignette RMSE inside the circle {vig}");
     assert!(resp < 0.004, "response RMSE {resp}");
-    assert!(vig < 0.02, "vignette RMSE inside the circle {vig}");
 }

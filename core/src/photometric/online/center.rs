@@ -28,12 +28,17 @@
 //! (the exposures have already absorbed the tilt); leaving them free lets small systematic
 //! errors of the tracks move it: on the tuning sequences the estimate was off by 4–49 px
 //! with a σ near 1 px, so `auto` is opt-in (see the README's limits).
+//!
+//! The same fit runs with the radial spline of a fisheye's image circle
+//! ([`super::vig_stage`]): there the border falls from most of the light to none within a few
+//! pixels, which no exposure ramp mimics, so the tracks that cross it fix the centre.
 
 use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::super::emor::emor_basis;
-use super::super::joint::{JointState, Obs};
+use super::super::joint::{JointState, Obs, SPLINE_SMOOTHING, spline_penalties};
 use super::super::response::{emor_eval, emor_value};
 use crate::error::CoreResult;
 use crate::progress::Progress;
@@ -47,7 +52,8 @@ pub enum CenterMode {
     /// spread over the image) and it differs significantly from the image centre.
     Auto,
     /// Keep it at the image centre (DSO's model; the default). With a fisheye's image circle
-    /// found, the circle's centre is fitted too and kept when it explains the samples better.
+    /// found, the circle's centre refined by the spline fit (with the polynomial requested,
+    /// the circle's centre when it explains the samples better).
     #[default]
     Fixed,
     /// Always use the estimate (unless the fit fails).
@@ -79,13 +85,12 @@ pub(super) const MIN_COVERAGE: f64 = 0.75;
 /// χ² (2 dof, 99 %) above which the shift from the image centre counts as significant.
 pub(super) const CHI2_2DOF_99: f64 = 9.21;
 
-/// The estimate: centre (pixels), its σ (pixels) and the state at the estimate.
+/// The estimate: centre (pixels), its σ (pixels) and the state at the estimate (the
+/// response as it started).
 pub(super) struct CenterFit {
     pub center: [f64; 2],
     pub sigma: [f64; 2],
-    pub v: [f64; 3],
-    pub log_e: Vec<f64>,
-    pub log_l: Vec<f64>,
+    pub state: JointState,
 }
 
 /// Share of the cells of a 4×4 grid over the image that hold at least one sample.
@@ -105,20 +110,67 @@ pub(super) fn r2_at(p: [f32; 2], center: [f64; 2], rad: f64) -> f32 {
     ((dx * dx + dy * dy) / (rad * rad)) as f32
 }
 
-fn vig(v: &[f64; 3], r2: f64) -> f64 {
-    (1.0 + r2 * (v[0] + r2 * (v[1] + r2 * v[2]))).max(1e-3)
-}
-
 /// Per scene point: `H_ll`, `b_l` and the cross terms with the dense parameters.
 type PointBlock = (f64, f64, Vec<(usize, f64)>);
 
-/// Dense parameters: `v1..v3`, the centre in units of the half diagonal, log exposures 1…
-const NV: usize = 3;
+/// Dense parameters: the vignetting model's free values (the polynomial's `v1..v3` or the
+/// spline's values after the first), the centre in units of the half diagonal, log exposures 1…
 const NCEN: usize = 2;
 
-/// Fit the centre (and `v`, exposures, radiances) from `start`, beginning at `center0`.
-/// `obs` is sorted by point and `pos` holds each observation's pixel position. `None` when the
-/// normal matrix is singular (nothing constrains the centre).
+/// Radius step of the spline's numerical derivative (normalised radius; the knots are at
+/// least ~0.01 apart).
+const DR: f64 = 1e-5;
+
+/// `∂V/∂r²` of `s`'s vignetting at `r2`, and the weights `∂V/∂θ` of its free parameters into
+/// `grad` (`unit` is scratch of the spline's length, all zero).
+fn vig_derivatives(s: &JointState, r2: f64, unit: &mut [f64], grad: &mut Vec<(usize, f64)>) -> f64 {
+    grad.clear();
+    match &s.spline {
+        None => {
+            let v = &s.v;
+            grad.extend([(0, r2), (1, r2 * r2), (2, r2 * r2 * r2)]);
+            v[0] + r2 * (2.0 * v[1] + 3.0 * r2 * v[2])
+        }
+        Some(sp) => {
+            let r = r2.max(0.0).sqrt();
+            let mut w = Vec::with_capacity(4);
+            sp.basis_into(r, unit, &mut w);
+            grad.extend(
+                w.into_iter()
+                    .filter(|&(j, _)| j > 0)
+                    .map(|(j, x)| (j - 1, x)),
+            );
+            if r < DR {
+                return 0.0;
+            }
+            let dv_dr = (sp.eval(r + DR) - sp.eval(r - DR)) / (2.0 * DR);
+            dv_dr / (2.0 * r)
+        }
+    }
+}
+
+/// `s` moved by the first `nv` entries of `d` (its free vignetting parameters).
+fn step_vignette(s: &mut JointState, d: &[f64]) {
+    match s.spline.as_mut() {
+        Some(sp) => {
+            for (v, x) in sp.values[1..].iter_mut().zip(d) {
+                *v += x;
+            }
+        }
+        None => {
+            for (v, x) in s.v.iter_mut().zip(d) {
+                *v += x;
+            }
+        }
+    }
+}
+
+/// Fit the centre (and the vignetting model, exposures, radiances) from `start`, beginning at
+/// `center0`, with the response held. The model is `start`'s: the polynomial or, when
+/// `start.spline` is set, the spline (a fisheye's image circle, whose steep border pins the
+/// centre far better than a smooth fall-off does). `obs` is sorted by point and `pos` holds
+/// each observation's pixel position. `None` when the normal matrix is singular (nothing
+/// constrains the centre).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn fit_center(
     obs: &[Obs],
@@ -131,7 +183,9 @@ pub(super) fn fit_center(
     progress: &dyn Progress,
 ) -> CoreResult<Option<CenterFit>> {
     let nf = start.log_e.len();
-    let dim = NV + NCEN + nf.saturating_sub(1);
+    let nv = start.spline.as_ref().map_or(3, |s| s.values.len() - 1);
+    let nk = start.spline.as_ref().map_or(0, |s| s.values.len());
+    let dim = nv + NCEN + nf.saturating_sub(1);
     let curve = emor_basis().curve(&start.c);
     let mut ranges = Vec::new();
     let mut s0 = 0;
@@ -142,14 +196,13 @@ pub(super) fn fit_center(
         }
     }
     struct St {
-        v: [f64; 3],
+        s: JointState,
         c: [f64; 2],
-        log_e: Vec<f64>,
-        log_l: Vec<f64>,
     }
-    let residual = |s: &St, o: &Obs, p: [f32; 2]| {
-        let r2 = f64::from(r2_at(p, s.c, rad));
-        let e = s.log_e[o.frame as usize].exp() * vig(&s.v, r2) * s.log_l[o.point as usize].exp();
+    let residual = |st: &St, o: &Obs, p: [f32; 2]| {
+        let r2 = f64::from(r2_at(p, st.c, rad));
+        let s = &st.s;
+        let e = s.log_e[o.frame as usize].exp() * s.vig(r2) * s.log_l[o.point as usize].exp();
         o.residual(emor_value(&curve, e))
     };
     let rho = |r: f64| {
@@ -160,36 +213,57 @@ pub(super) fn fit_center(
             2.0 * huber * a - huber * huber
         }
     };
+    // The spline's second-difference penalty, weighted as in the joint fit: knots that no
+    // sample reaches stay determined (and the covariance below invertible).
+    let ws = SPLINE_SMOOTHING
+        * obs
+            .iter()
+            .map(|o| f64::from(o.weight))
+            .sum::<f64>()
+            .max(1.0);
+    // In fixed chunks summed in order: the same result on any number of threads.
     let cost_of = |s: &St| -> f64 {
-        obs.iter()
-            .zip(pos)
-            .map(|(o, &p)| f64::from(o.weight) * rho(residual(s, o, p)))
-            .sum()
+        let idx: Vec<usize> = (0..obs.len()).collect();
+        let parts: Vec<f64> = idx
+            .par_chunks(8192)
+            .map(|ch| {
+                ch.iter()
+                    .map(|&i| f64::from(obs[i].weight) * rho(residual(s, &obs[i], pos[i])))
+                    .sum()
+            })
+            .collect();
+        let smooth = s.s.spline.as_ref().map_or(0.0, |sp| {
+            spline_penalties(sp).iter().map(|(d, _)| ws * d * d).sum()
+        });
+        parts.iter().sum::<f64>() + smooth
     };
     let mut st = St {
-        v: start.v,
+        s: start.clone(),
         c: center0,
-        log_e: start.log_e.clone(),
-        log_l: start.log_l.clone(),
     };
     let mut cost = cost_of(&st);
     let mut lambda = 1e-3;
     // Normal equations at `s`: dense block, gradient, per-point (H_ll, b_l, cross terms), and
     // the weighted squared residuals with their count (for the variance).
     type Normal = (DMatrix<f64>, DVector<f64>, Vec<PointBlock>, f64, usize);
-    let normal = |s: &St| -> Normal {
+    // Built per chunk of points in parallel and summed in chunk order (deterministic).
+    let normal_of = |st: &St, chunk: &[std::ops::Range<usize>]| -> Normal {
+        let s = &st.s;
         let mut h = DMatrix::<f64>::zeros(dim, dim);
         let mut g = DVector::<f64>::zeros(dim);
-        let mut blocks = Vec::with_capacity(ranges.len());
+        let mut blocks = Vec::with_capacity(chunk.len());
         let (mut ss, mut n) = (0.0, 0usize);
-        for rg in &ranges {
+        let mut unit = vec![0.0; nk];
+        let mut vgrad = Vec::with_capacity(4);
+        let mut jac = Vec::with_capacity(8);
+        for rg in chunk {
             let l = s.log_l[obs[rg.start].point as usize].exp();
             let (mut hl, mut bl) = (0.0, 0.0);
             let mut cross = vec![0.0; dim];
             for (o, &p) in obs[rg.clone()].iter().zip(&pos[rg.clone()]) {
-                let (dx, dy) = (f64::from(p[0]) - s.c[0], f64::from(p[1]) - s.c[1]);
+                let (dx, dy) = (f64::from(p[0]) - st.c[0], f64::from(p[1]) - st.c[1]);
                 let r2 = (dx * dx + dy * dy) / (rad * rad);
-                let vg = vig(&s.v, r2);
+                let vg = s.vig(r2);
                 let e = s.log_e[o.frame as usize].exp() * vg * l;
                 let ev = emor_eval(&curve, e);
                 let r = o.residual(ev.f);
@@ -207,27 +281,18 @@ pub(super) fn fit_center(
                     n += 1;
                 }
                 let de = ev.df * e;
-                let dv_dr2 = s.v[0] + r2 * (2.0 * s.v[1] + 3.0 * r2 * s.v[2]);
-                let mut jac = [(0usize, 0.0f64); NV + NCEN + 1];
-                let mut nj = 0;
-                let mut rp = r2;
-                for m in 0..NV {
-                    jac[nj] = (m, de / vg * rp);
-                    nj += 1;
-                    rp *= r2;
-                }
+                let dv_dr2 = vig_derivatives(s, r2, &mut unit, &mut vgrad);
+                jac.clear();
+                jac.extend(vgrad.iter().map(|&(m, x)| (m, de / vg * x)));
                 // Centre in units of `rad`: ∂r²/∂(c/rad) = −2 d / rad.
-                jac[nj] = (NV, de / vg * dv_dr2 * (-2.0 * dx / rad));
-                jac[nj + 1] = (NV + 1, de / vg * dv_dr2 * (-2.0 * dy / rad));
-                nj += 2;
+                jac.push((nv, de / vg * dv_dr2 * (-2.0 * dx / rad)));
+                jac.push((nv + 1, de / vg * dv_dr2 * (-2.0 * dy / rad)));
                 if o.frame > 0 {
-                    jac[nj] = (NV + NCEN + o.frame as usize - 1, de);
-                    nj += 1;
+                    jac.push((nv + NCEN + o.frame as usize - 1, de));
                 }
-                for a in 0..nj {
-                    let (ia, ja) = jac[a];
+                for &(ia, ja) in &jac {
                     g[ia] += w * ja * r;
-                    for &(ib, jb) in &jac[..nj] {
+                    for &(ib, jb) in &jac {
                         h[(ia, ib)] += w * ja * jb;
                     }
                     cross[ia] += w * ja * de;
@@ -244,6 +309,42 @@ pub(super) fn fit_center(
         }
         (h, g, blocks, ss, n)
     };
+    let normal = |st: &St| -> Normal {
+        let per = ranges.len().div_ceil(8).max(1);
+        let parts: Vec<Normal> = ranges
+            .par_chunks(per)
+            .map(|chunk| normal_of(st, chunk))
+            .collect();
+        let mut it = parts.into_iter();
+        let Some(mut acc) = it.next() else {
+            return (
+                DMatrix::zeros(dim, dim),
+                DVector::zeros(dim),
+                Vec::new(),
+                0.0,
+                0,
+            );
+        };
+        for (h, g, blocks, ss, n) in it {
+            acc.0 += h;
+            acc.1 += g;
+            acc.2.extend(blocks);
+            acc.3 += ss;
+            acc.4 += n;
+        }
+        if let Some(sp) = &st.s.spline {
+            for (d, grad) in spline_penalties(sp) {
+                for &(ia, ja) in &grad {
+                    acc.1[ia] -= ws * ja * d;
+                    for &(ib, jb) in &grad {
+                        acc.0[(ia, ib)] += ws * ja * jb;
+                    }
+                }
+            }
+        }
+        acc
+    };
+
     // Reduced (Schur) system for damping `lam`.
     let reduce = |h: &DMatrix<f64>, g: &DVector<f64>, blocks: &[PointBlock], lam: f64| {
         let mut s = h.clone();
@@ -275,17 +376,16 @@ pub(super) fn fit_center(
             let d = chol.solve(&b);
             // A step of more than 5 % of the half diagonal is not trusted in one go.
             let step_c = [
-                (d[NV] * rad).clamp(-0.05 * rad, 0.05 * rad),
-                (d[NV + 1] * rad).clamp(-0.05 * rad, 0.05 * rad),
+                (d[nv] * rad).clamp(-0.05 * rad, 0.05 * rad),
+                (d[nv + 1] * rad).clamp(-0.05 * rad, 0.05 * rad),
             ];
             let mut cand = St {
-                v: [st.v[0] + d[0], st.v[1] + d[1], st.v[2] + d[2]],
+                s: st.s.clone(),
                 c: [st.c[0] + step_c[0], st.c[1] + step_c[1]],
-                log_e: st.log_e.clone(),
-                log_l: st.log_l.clone(),
             };
+            step_vignette(&mut cand.s, &d.as_slice()[..nv]);
             for f in 1..nf {
-                cand.log_e[f] += d[NV + NCEN + f - 1];
+                cand.s.log_e[f] += d[nv + NCEN + f - 1];
             }
             for (rg, (hl, bl, cross)) in ranges.iter().zip(&blocks) {
                 let hd = hl * (1.0 + lambda) + 1e-12;
@@ -293,7 +393,7 @@ pub(super) fn fit_center(
                 for &(a, xa) in cross {
                     rhs -= xa * d[a];
                 }
-                cand.log_l[obs[rg.start].point as usize] += (rhs / hd).clamp(-2.0, 2.0);
+                cand.s.log_l[obs[rg.start].point as usize] += (rhs / hd).clamp(-2.0, 2.0);
             }
             let new_cost = cost_of(&cand);
             if new_cost.is_finite() && new_cost < cost {
@@ -318,17 +418,15 @@ pub(super) fn fit_center(
         return Ok(None);
     };
     let var = ss / (n.saturating_sub(dim + ranges.len())).max(1) as f64;
-    let sx = (inv[(NV, NV)] * var).sqrt() * rad;
-    let sy = (inv[(NV + 1, NV + 1)] * var).sqrt() * rad;
+    let sx = (inv[(nv, nv)] * var).sqrt() * rad;
+    let sy = (inv[(nv + 1, nv + 1)] * var).sqrt() * rad;
     if !(sx.is_finite() && sy.is_finite() && st.c.iter().all(|c| c.is_finite())) {
         return Ok(None);
     }
     Ok(Some(CenterFit {
         center: st.c,
         sigma: [sx, sy],
-        v: st.v,
-        log_e: st.log_e,
-        log_l: st.log_l,
+        state: st.s,
     }))
 }
 
@@ -422,9 +520,7 @@ pub(super) fn resolve(
         for (o, &p) in obs.iter_mut().zip(pos) {
             o.r2 = r2_at(p, fit.center, rad);
         }
-        state.v = fit.v;
-        state.log_e = fit.log_e;
-        state.log_l = fit.log_l;
+        *state = fit.state;
     }
     Ok(report)
 }

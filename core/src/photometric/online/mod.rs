@@ -108,8 +108,9 @@ pub struct OnlineParams {
     /// colour channel with exposures and vignetting shared (colour frames only).
     pub channels: Channels,
     /// Vignetting centre: `fixed` (default) keeps the image centre (DSO's model), except that
-    /// with an image circle found its centre is fitted too and kept when it explains the
-    /// samples better (`vig_stage`); `auto`
+    /// with an image circle found the circle's centre, refined by the spline fit, is used
+    /// (with the polynomial requested: the circle's centre when it explains the samples
+    /// better; `vig_stage`); `auto`
     /// estimates it and keeps the estimate when the data constrain it; `estimated` always
     /// uses the estimate. Experimental: on the synthetic tests the estimate can be biased by
     /// tens of pixels under mostly translational motion (see `center`).
