@@ -223,12 +223,13 @@ pub(super) fn fit_center(
             .max(1.0);
     // In fixed chunks summed in order: the same result on any number of threads.
     let cost_of = |s: &St| -> f64 {
-        let idx: Vec<usize> = (0..obs.len()).collect();
-        let parts: Vec<f64> = idx
+        let parts: Vec<f64> = obs
             .par_chunks(8192)
-            .map(|ch| {
-                ch.iter()
-                    .map(|&i| f64::from(obs[i].weight) * rho(residual(s, &obs[i], pos[i])))
+            .zip(pos.par_chunks(8192))
+            .map(|(oc, pc)| {
+                oc.iter()
+                    .zip(pc)
+                    .map(|(o, &p)| f64::from(o.weight) * rho(residual(s, o, p)))
                     .sum()
             })
             .collect();

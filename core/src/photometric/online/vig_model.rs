@@ -36,7 +36,7 @@ pub(super) const CIRCLE_KNOTS: usize = 18;
 
 /// Iteration limit of the spline stage: it starts at the polynomial's optimum, and the rest
 /// of the state moves little.
-const SPLINE_ITERATIONS: usize = 20;
+pub(super) const SPLINE_ITERATIONS: usize = 20;
 
 /// `auto` keeps the spline when it lowers the robust cost and departs from its nearest
 /// polynomial by more than this RMS over the image's pixels. Measured on the tuning sets of

@@ -193,7 +193,7 @@ fn refit_center(
     }
     *state = fit.state;
     let cfg = JointConfig {
-        max_iterations: joint.max_iterations.min(20),
+        max_iterations: joint.max_iterations.min(vig_model::SPLINE_ITERATIONS),
         label: "vignette_centre",
         ..joint.clone()
     };
