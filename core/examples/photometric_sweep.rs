@@ -85,6 +85,13 @@
 //!   generators) and `fisheye3` (seeds from 25 000, `fisheye`'s): fresh seeds of the older
 //!   families. All three fixed 2026-12-07 before the border-free gauge and the equal-area
 //!   knots (`online/circle.rs`, `online/vig_model.rs`) were measured on them.
+//! * `fisheye-erf2`, `fisheye-erf3` (seeds from 26 000 and 28 000, `fisheye-erf`'s generators)
+//!   and `fisheye-eval6` (27 000, `fisheye-eval`'s): fixed 2026-12-07 before the centre refit
+//!   of `online/vig_stage.rs` was measured on them, each run once with it and once without.
+//! * `fisheye-erf4` (29 000, `fisheye-erf`'s) and `fisheye-eval7` (30 000, `fisheye-eval`'s):
+//!   fixed 2026-12-07 (the next session) after every choice of the refit, to confirm it once.
+//!   A split's printout gives each fisheye case's vignetting centre and its distance from the
+//!   true one.
 //!
 //! Fisheye gauge and knots (2026-12-07). `SWEEP_RADIAL=1` splits the vignette error by the
 //! true level and prints the spline's values: on `fisheye-eval` and `fisheye-eval2` the misses
@@ -422,8 +429,12 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
             | "fisheye-eval4"
             | "fisheye-eval5"
             | "fisheye-eval6"
+            | "fisheye-eval7"
     );
-    let fisheye_erf = matches!(set, "fisheye-erf" | "fisheye-erf2" | "fisheye-erf3");
+    let fisheye_erf = matches!(
+        set,
+        "fisheye-erf" | "fisheye-erf2" | "fisheye-erf3" | "fisheye-erf4"
+    );
     let (seed, offset) = match set {
         "eval" => (1000 + i as u64, 17),
         "saturated" => (2000 + i as u64, 29),
@@ -453,6 +464,8 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         "fisheye-erf2" => (26_000 + i as u64, 193),
         "fisheye-eval6" => (27_000 + i as u64, 197),
         "fisheye-erf3" => (28_000 + i as u64, 199),
+        "fisheye-erf4" => (29_000 + i as u64, 211),
+        "fisheye-eval7" => (30_000 + i as u64, 223),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));
@@ -725,6 +738,7 @@ fn score(
     truth_inv: &InverseResponse,
     truth_vig: &[f32],
     truth_e: &[f64],
+    truth_center: [f64; 2],
 ) -> Row {
     let (t0, c0) = (Instant::now(), cpu_seconds());
     // `SWEEP_PARAMS='{"gamma_gauge": 0.5}'` reproduces the old fixed gauge.
@@ -806,8 +820,11 @@ fn score(
                 );
                 let v = &r.vignette_center;
                 println!(
-                    "    vignetting centre ({:.1}, {:.1}): {}",
-                    v.center[0], v.center[1], v.reason
+                    "    vignetting centre ({:.1}, {:.1}), {:.2} px from the truth: {}",
+                    v.center[0],
+                    v.center[1],
+                    (v.center[0] - truth_center[0]).hypot(v.center[1] - truth_center[1]),
+                    v.reason
                 );
             }
             if let Some(m) = r.measured_levels {
@@ -1074,12 +1091,17 @@ fn shared(dir: &Path) -> Result<Row, String> {
         None,
     )
     .map_err(|e| e.to_string())?;
+    // The shared sequence's vignetting is centred (it has no image circle either).
+    let center = frames
+        .first()
+        .map_or([0.0; 2], |f| [f.width as f64 / 2.0, f.height as f64 / 2.0]);
     Ok(score(
         "ae_seq_seed0".into(),
         &frames,
         &truth_inv,
         &vig.data,
         &truth_e,
+        center,
     ))
 }
 
@@ -1112,11 +1134,12 @@ fn main() {
         } else {
             video
         };
+        let true_center = [
+            width as f64 / 2.0 + video.vignette_shift[0],
+            height as f64 / 2.0 + video.vignette_shift[1],
+        ];
         if std::env::var_os("SWEEP_DEBUG").is_some() {
-            let c = [
-                width as f64 / 2.0 + video.vignette_shift[0],
-                height as f64 / 2.0 + video.vignette_shift[1],
-            ];
+            let c = true_center;
             eprintln!(
                 "{name}\n  {cam:?}\n  {video:?}\n  true vignetting centre ({:.2}, {:.2})",
                 c[0], c[1]
@@ -1149,6 +1172,7 @@ fn main() {
             &cam.response.inverse(256),
             &seq.vignette_map,
             &seq.exposures,
+            true_center,
         ));
     }
     let col = |f: fn(&Row) -> f64| rows.iter().map(f).collect::<Vec<_>>();

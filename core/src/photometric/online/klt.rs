@@ -1,5 +1,8 @@
 //! Gain-robust KLT tracking on an image pyramid.
 //!
+//! (Slightly over 600 lines: the test that the grid sampling of [`align_step`] matches the
+//! per-pixel one needs the private level and brightness types, so it stays in this file.)
+//!
 //! Auto exposure changes the brightness of every frame, which breaks the brightness-constancy
 //! assumption of Lucas-Kanade. Following Kim, Frahm & Pollefeys ("Joint Feature Tracking and
 //! Radiometric Calibration from Auto-Exposed Video", ICCV 2007) and Kim & Pollefeys (PAMI
@@ -207,19 +210,33 @@ fn align_step(
     let mut g = [0.0f32; 5];
     let mut ss = 0.0f32;
     let mut used = 0usize;
-    for (k, x, y) in window(hw, warp, q) {
-        let t = tmpl[k];
-        // All four pixels of the bilinear support must be unclipped: a clipped neighbour's
-        // true value is beyond the clip, so the interpolation is biased.
-        let [j, jx, jy] = lb.sample3(x, y)?;
-        if clipped(t) || lb.support_clipped(x, y) {
-            continue;
-        }
+    let mut add = |t: f32, [j, jx, jy]: [f32; 3]| {
         used += 1;
         let t2 = (t - QUAD_CENTRE) * (t - QUAD_CENTRE);
         let r = b.gain * t + b.bias + b.quad * t2 - j;
         ss += r * r;
         normal_add(&mut hm, &mut g, &[jx, jy, -t, -1.0, -t2], r);
+    };
+    match (warp == Similarity::IDENTITY)
+        .then(|| GridWindow::inside(lb, q, hw))
+        .flatten()
+    {
+        // Frame-to-frame tracking: the window is the level's pixel grid shifted by one
+        // fraction, so the bilinear weights and row offsets are computed once (the per-pixel
+        // sampling was a quarter of the fit's time).
+        Some(grid) => grid.for_each(lb, tmpl, &mut add),
+        None => {
+            for (k, x, y) in window(hw, warp, q) {
+                let t = tmpl[k];
+                // All four pixels of the bilinear support must be unclipped: a clipped
+                // neighbour's true value is beyond the clip, so the interpolation is biased.
+                let s = lb.sample3(x, y)?;
+                if clipped(t) || lb.support_clipped(x, y) {
+                    continue;
+                }
+                add(t, s);
+            }
+        }
     }
     if used < tmpl.len() / 2 {
         return None;
@@ -242,6 +259,68 @@ fn align_step(
         [step[0], step[1], step[2], step[3], step[4]],
         (ss / used as f32).sqrt(),
     ))
+}
+
+/// An unwarped `(2·hw + 1)²` window at `q` whose bilinear support lies inside the level: every
+/// pixel shares the fractional offset `(fx, fy)` of its top-left corner.
+struct GridWindow {
+    /// Index of the support's top-left pixel.
+    origin: usize,
+    side: usize,
+    weights: [f32; 4],
+}
+
+impl GridWindow {
+    /// `None` when the window's support reaches the level's last row or column (or beyond),
+    /// where [`Level::sample3`]'s clamping applies.
+    fn inside(l: &Level, q: [f32; 2], hw: i32) -> Option<Self> {
+        let (xa, ya) = (q[0] - hw as f32, q[1] - hw as f32);
+        if !(xa >= 0.0 && ya >= 0.0) {
+            return None;
+        }
+        let side = (2 * hw + 1) as usize;
+        let (x0, y0) = (xa as usize, ya as usize);
+        if x0 + side >= l.w || y0 + side >= l.h {
+            return None;
+        }
+        let (fx, fy) = (xa - x0 as f32, ya - y0 as f32);
+        Some(Self {
+            origin: y0 * l.w + x0,
+            side,
+            weights: [
+                (1.0 - fx) * (1.0 - fy),
+                fx * (1.0 - fy),
+                (1.0 - fx) * fy,
+                fx * fy,
+            ],
+        })
+    }
+
+    /// Calls `f(template value, [J, ∂J/∂x, ∂J/∂y])` for every window pixel in raster order
+    /// whose template value and bilinear support are unclipped.
+    #[inline]
+    fn for_each(&self, l: &Level, tmpl: &[f32], f: &mut impl FnMut(f32, [f32; 3])) {
+        let [wa, wb, wc, wd] = self.weights;
+        for (r, trow) in tmpl.chunks_exact(self.side).enumerate() {
+            let i0 = self.origin + r * l.w;
+            let top = &l.px[i0..i0 + self.side + 1];
+            let bottom = &l.px[i0 + l.w..i0 + l.w + self.side + 1];
+            for (c, &t) in trow.iter().enumerate() {
+                let (a, b) = (top[c], top[c + 1]);
+                let (cc, d) = (bottom[c], bottom[c + 1]);
+                if clipped(t)
+                    || clipped(a[VALUE])
+                    || clipped(b[VALUE])
+                    || clipped(cc[VALUE])
+                    || clipped(d[VALUE])
+                {
+                    continue;
+                }
+                let s = |m: usize| wa * a[m] + wb * b[m] + wc * cc[m] + wd * d[m];
+                f(t, [s(0), s(1), s(2)]);
+            }
+        }
+    }
 }
 
 /// Add one residual `r` with Jacobian row `jac` to the normal equations (`hm`'s upper
@@ -489,4 +568,64 @@ pub(crate) fn track_and_refine(
             (rms <= cfg.max_residual).then_some(q2)
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The grid path of [`align_step`] (unwarped windows) computes what the per-pixel path
+    /// does: a warp that is the identity to f32 precision but not `IDENTITY` takes the latter.
+    #[test]
+    fn grid_window_matches_per_pixel_sampling() {
+        let (w, h) = (64usize, 48usize);
+        let data: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                // Values that reach both clip levels, so the clipped tests are exercised.
+                (0.5 + 0.6 * (0.31 * x).sin() * (0.23 * y + 0.4 * (0.11 * x).cos()).cos())
+                    .clamp(0.0, 1.0)
+            })
+            .collect();
+        let level = Level::new(w, h, data);
+        let hw = 4;
+        let near_identity = Similarity { c: 1.0, s: 1e-30 };
+        assert_ne!(near_identity, Similarity::IDENTITY);
+        let b = Brightness {
+            gain: 1.1,
+            bias: -0.02,
+            quad: 0.05,
+        };
+        let mut compared = 0;
+        for k in 0..400 {
+            let q = [
+                3.0 + (k as f32 * 0.618_034).fract() * (w as f32 - 6.0),
+                3.0 + (k as f32 * 0.414_213_5).fract() * (h as f32 - 6.0),
+            ];
+            let tmpl: Vec<f32> = window(hw, Similarity::IDENTITY, [q[1], q[0] * 0.7])
+                .map(|(_, x, y)| level.sample(VALUE, x, y).unwrap_or(0.5))
+                .collect();
+            let grid = GridWindow::inside(&level, q, hw).is_some();
+            let fast = align_step(&level, &tmpl, hw, q, b, Similarity::IDENTITY);
+            let slow = align_step(&level, &tmpl, hw, q, b, near_identity);
+            match (fast, slow) {
+                (Some((a, ra)), Some((s, rs))) => {
+                    compared += usize::from(grid);
+                    assert!(
+                        (ra - rs).abs() <= 1e-4 * rs.max(1e-3),
+                        "{q:?}: rms {ra} vs {rs}"
+                    );
+                    for (x, y) in a.iter().zip(&s) {
+                        assert!(
+                            (x - y).abs() <= 1e-3 * y.abs().max(1e-2),
+                            "{q:?}: {a:?} vs {s:?}"
+                        );
+                    }
+                }
+                (None, None) => {}
+                (f, s) => panic!("{q:?}: {f:?} vs {s:?}"),
+            }
+        }
+        assert!(compared > 200, "only {compared} windows took the grid path");
+    }
 }
