@@ -275,10 +275,16 @@ impl GridWindow {
     /// where [`Level::sample3`]'s clamping applies.
     fn inside(l: &Level, q: [f32; 2], hw: i32) -> Option<Self> {
         let (xa, ya) = (q[0] - hw as f32, q[1] - hw as f32);
-        if !(xa >= 0.0 && ya >= 0.0) {
+        let side = (2 * hw + 1) as usize;
+        // Compared as floats first, so that a far-off (or NaN) position never reaches the
+        // integer arithmetic below.
+        if !(xa >= 0.0
+            && ya >= 0.0
+            && xa + (side as f32) < l.w as f32
+            && ya + (side as f32) < l.h as f32)
+        {
             return None;
         }
-        let side = (2 * hw + 1) as usize;
         let (x0, y0) = (xa as usize, ya as usize);
         if x0 + side >= l.w || y0 + side >= l.h {
             return None;
@@ -656,5 +662,17 @@ mod tests {
             }
         }
         assert!(compared > 200, "only {compared} windows took the grid path");
+        // Positions whose support leaves the level take the per-pixel path, however far off.
+        for q in [
+            [f32::NAN, 10.0],
+            [f32::INFINITY, 10.0],
+            [1e30, 10.0],
+            [10.0, 3.0e19],
+            [(w - 1) as f32 - hw as f32, 10.0],
+            [3.9, 10.0],
+        ] {
+            assert!(GridWindow::inside(&level, q, hw).is_none(), "{q:?}");
+        }
+        assert!(GridWindow::inside(&level, [(w - 2) as f32 - hw as f32 - 0.5, 10.0], hw).is_some());
     }
 }
