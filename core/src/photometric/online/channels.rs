@@ -40,7 +40,7 @@ use super::super::{PhotoImage, check_stack};
 use super::center::r2_at;
 use super::circle;
 use super::gauge::{GaugeContext, OtherChannel};
-use super::klt::Level;
+use super::pyramid::Level;
 use super::response_match::{ResponseMatch, recoverable};
 use super::{
     GRAD_HALF_WEIGHT, Observations, OnlineParams, OnlineResult, find_circle, first_look, fit,

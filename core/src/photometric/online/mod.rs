@@ -46,6 +46,7 @@ pub(crate) mod klt;
 mod levels;
 mod linked;
 mod observe;
+mod pyramid;
 mod response_match;
 mod similarity;
 mod vig_model;

@@ -8,9 +8,8 @@ use super::super::PhotoImage;
 use super::super::joint::{Censor, Obs};
 use super::super::vignette::VignetteModel;
 use super::OnlineParams;
-use super::klt::{
-    GRAD_X, GRAD_Y, KltConfig, Level, Pyramid, Track, VALUE, min_eigen, patch, track_and_refine,
-};
+use super::klt::{KltConfig, Track, patch, track_and_refine};
+use super::pyramid::{GRAD_X, GRAD_Y, Level, Pyramid, VALUE, min_eigen};
 use super::response_match::ResponseMatch;
 use super::similarity::Similarity;
 use crate::error::{CoreError, CoreResult};

@@ -22,7 +22,8 @@
 //! the default (`tracking_passes: 2`) since the fit got faster and the first pass stops at its
 //! gauge profile ([`super::first_look`]; `examples/photometric_sweep.rs` has the numbers).
 
-use super::klt::{Level, VALUE, clipped, normal_add, window};
+use super::klt::{normal_add, window};
+use super::pyramid::{Level, VALUE, clipped};
 use super::similarity::Similarity;
 use crate::error::CoreError;
 use crate::photometric::emor::EMOR_SAMPLES;
@@ -227,7 +228,7 @@ mod tests {
             refine_with_response(&tmpl, &level, start, hw, 20, Similarity::IDENTITY, &rm).unwrap();
         let err = (q[0] - c[0] - shift[0]).hypot(q[1] - c[1] - shift[1]);
         // The first pass's gain, bias and quadratic model on the same match.
-        let pyr = super::super::klt::Pyramid::new(w, h, data, 1);
+        let pyr = super::super::pyramid::Pyramid::new(w, h, data, 1);
         let (qa, _) =
             super::super::klt::refine_to_template(&tmpl, &pyr, start, hw, 20, Similarity::IDENTITY)
                 .unwrap();
