@@ -92,6 +92,9 @@
 //!   fixed 2026-12-07 (the next session) after every choice of the refit, to confirm it once.
 //!   A split's printout gives each fisheye case's vignetting centre and its distance from the
 //!   true one.
+//! * `fisheye-eval8` (31 000, `fisheye-eval`'s) and `fisheye-erf5` (32 000, `fisheye-erf`'s):
+//!   fixed 2026-12-07 (third session) after the image circle's outside share was lowered
+//!   (`online/circle.rs`, `MIN_OUTSIDE_SHARE`, chosen on `fisheye-eval7#2`), to confirm it once.
 //!
 //! Fisheye gauge and knots (2026-12-07). `SWEEP_RADIAL=1` splits the vignette error by the
 //! true level and prints the spline's values: on `fisheye-eval` and `fisheye-eval2` the misses
@@ -430,10 +433,11 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
             | "fisheye-eval5"
             | "fisheye-eval6"
             | "fisheye-eval7"
+            | "fisheye-eval8"
     );
     let fisheye_erf = matches!(
         set,
-        "fisheye-erf" | "fisheye-erf2" | "fisheye-erf3" | "fisheye-erf4"
+        "fisheye-erf" | "fisheye-erf2" | "fisheye-erf3" | "fisheye-erf4" | "fisheye-erf5"
     );
     let (seed, offset) = match set {
         "eval" => (1000 + i as u64, 17),
@@ -466,6 +470,8 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         "fisheye-erf3" => (28_000 + i as u64, 199),
         "fisheye-erf4" => (29_000 + i as u64, 211),
         "fisheye-eval7" => (30_000 + i as u64, 223),
+        "fisheye-eval8" => (31_000 + i as u64, 227),
+        "fisheye-erf5" => (32_000 + i as u64, 229),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));
