@@ -456,7 +456,10 @@ mod tests {
         // Within 1.5 px: the border points all lie in the corners, where the 3 × 3 box filter
         // sees the frame's edge (189.0 px here against the 189.9 of the level's 5 % crossing).
         assert!((got.radius_px - (184.0 + 5.89)).abs() < 1.5, "{got:?}");
-        assert!(got.outside_share > 0.001 && got.outside_share < 0.005, "{got:?}");
+        assert!(
+            got.outside_share > 0.001 && got.outside_share < 0.005,
+            "{got:?}"
+        );
         // Radius 188: 0.05 % beyond it (28 rays) is below MIN_OUTSIDE_SHARE, no circle.
         let level = disc(w, h, [160.0, 120.0], 188.0, None);
         assert!(detect(&level, w, h).is_none());
