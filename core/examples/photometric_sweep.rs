@@ -431,27 +431,9 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
     let lens = set == "lens";
     let scenes = set == "scenes";
     let fisheye = matches!(set, "fisheye" | "fisheye2" | "fisheye3");
-    let fisheye_eval = matches!(
-        set,
-        "fisheye-eval"
-            | "fisheye-eval2"
-            | "fisheye-eval3"
-            | "fisheye-eval4"
-            | "fisheye-eval5"
-            | "fisheye-eval6"
-            | "fisheye-eval7"
-            | "fisheye-eval8"
-            | "fisheye-eval9"
-    );
-    let fisheye_erf = matches!(
-        set,
-        "fisheye-erf"
-            | "fisheye-erf2"
-            | "fisheye-erf3"
-            | "fisheye-erf4"
-            | "fisheye-erf5"
-            | "fisheye-erf6"
-    );
+    // A split's generator family is its name's prefix; its seeds come from the table below.
+    let fisheye_eval = set.starts_with("fisheye-eval");
+    let fisheye_erf = set.starts_with("fisheye-erf");
     let (seed, offset) = match set {
         "eval" => (1000 + i as u64, 17),
         "saturated" => (2000 + i as u64, 29),
