@@ -102,6 +102,9 @@
 //!   either way on both, vignette medians 0.0066 against 0.0079 and 0.0045 against 0.0048, but
 //!   `fisheye-eval9#4` flipped from 0.0007 / 0.0066 / 0.52 % to 0.050 / 0.048 / 4.3 % (and the
 //!   tuning split's `fisheye-eval2#1` likewise). Not kept; see the README's limits.
+//! * `fisheye-eval10` (35 000, `fisheye-eval`'s) and `fisheye-erf7` (36 000, `fisheye-erf`'s):
+//!   fixed 2026-12-07 (fourth session) before the border stage (`online/border.rs`) was
+//!   chosen on the tuning splits, to confirm it once.
 //!
 //! Fisheye gauge and knots (2026-12-07). `SWEEP_RADIAL=1` splits the vignette error by the
 //! true level and prints the spline's values: on `fisheye-eval` and `fisheye-eval2` the misses
@@ -469,6 +472,8 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
         "fisheye-erf5" => (32_000 + i as u64, 229),
         "fisheye-eval9" => (33_000 + i as u64, 233),
         "fisheye-erf6" => (34_000 + i as u64, 239),
+        "fisheye-eval10" => (35_000 + i as u64, 241),
+        "fisheye-erf7" => (36_000 + i as u64, 251),
         _ => (i as u64, 3),
     };
     let mut rng = Rng::new(seed.wrapping_mul(7919).wrapping_add(offset));

@@ -38,6 +38,8 @@ mod vignette;
 #[cfg(test)]
 mod censor_tests;
 #[cfg(test)]
+mod online_fisheye_tests;
+#[cfg(test)]
 mod online_tests;
 #[cfg(test)]
 mod spline_tests;

@@ -320,6 +320,7 @@ fn sample_channel(
         mean_len: seen.mean_len,
         pos,
         mean_level: seen.mean_level.clone(),
+        grad: Vec::new(),
     })
 }
 

@@ -306,7 +306,7 @@ pub(crate) fn detect(level: &[f32], w: usize, h: usize) -> Option<ImageCircle> {
 }
 
 /// `v` box-filtered over 3 × 3 pixels (edges over what is inside the image).
-fn box3(v: &[f64], w: usize, h: usize) -> Vec<f64> {
+pub(super) fn box3(v: &[f64], w: usize, h: usize) -> Vec<f64> {
     let mut out = vec![0.0; v.len()];
     for y in 0..h {
         for x in 0..w {
@@ -324,7 +324,7 @@ fn box3(v: &[f64], w: usize, h: usize) -> Vec<f64> {
 }
 
 /// `v` (`w × h`, pixel centres at integers) at `(x, y)`, bilinear, clamped to the image.
-fn bilinear(v: &[f64], w: usize, h: usize, x: f64, y: f64) -> f64 {
+pub(super) fn bilinear(v: &[f64], w: usize, h: usize, x: f64, y: f64) -> f64 {
     let x = x.clamp(0.0, (w - 1) as f64);
     let y = y.clamp(0.0, (h - 1) as f64);
     let (x0, y0) = (x.floor() as usize, y.floor() as usize);

@@ -260,6 +260,7 @@ fn with_obs(seen: &Observations, obs: Vec<Obs>) -> Observations {
         mean_len: seen.mean_len,
         pos: Vec::new(),
         mean_level: Vec::new(),
+        grad: Vec::new(),
     }
 }
 
@@ -363,6 +364,7 @@ fn gt_obs(
         mean_len: 0.0,
         pos: Vec::new(),
         mean_level: Vec::new(),
+        grad: Vec::new(),
     }
 }
 

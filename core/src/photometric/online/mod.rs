@@ -31,6 +31,7 @@
 //! Colour input with `channels: rgb` tracks on luma and fits one response per channel with
 //! exposures and vignetting shared ([`channels`]).
 
+mod border;
 mod center;
 mod channels;
 mod circle;
@@ -402,6 +403,7 @@ pub(crate) fn fit(
         mean_len,
         pos,
         mean_level,
+        grad,
     } = seen;
     let parts = match params.broken_tracks {
         BrokenTracks::Refuse => {
@@ -442,7 +444,7 @@ pub(crate) fn fit(
     let vig_stage::Stage {
         response,
         mut model,
-        choice: vignette_choice,
+        choice: mut vignette_choice,
         center,
     } = vig_stage::fit(
         params,
@@ -454,6 +456,26 @@ pub(crate) fn fit(
         (w, h),
         progress,
     )?;
+    // A fisheye's border refitted with the scene's gradient alone in the samples' weights
+    // (see `border`).
+    if let Some(c) = image_circle.as_ref()
+        && model.spline.is_some()
+    {
+        let input = border::BorderInputs {
+            obs: &obs,
+            pos: &pos,
+            grad: &grad,
+            mean_level: &mean_level,
+        };
+        if let Some((n, _)) = border::refit(c, &input, (w, h), &joint, &mut state, progress)? {
+            model.spline = state.spline.clone();
+            vignette_choice.reason.push_str(&format!(
+                "; refitted over the border (beyond {:.0} % of the circle's radius) with \
+                 {n} samples weighted by the scene's gradient alone, not the fall-off's",
+                100.0 * circle::GAUGE_DISC
+            ));
+        }
+    }
     let monotone = response.is_monotone();
     // Without a circle found, a fisheye's tracks still stay inside its image circle, and the
     // polynomial extrapolated to the dark corners may turn negative there. Mask it from where

@@ -52,6 +52,9 @@ pub(crate) struct Observations {
     /// The mean normalised level each pixel recorded ([`super::circle::mean_levels`]): where
     /// a fisheye's image circle ends. Empty when not known.
     pub mean_level: Vec<f32>,
+    /// The recorded gradient at each observation (same order as `obs`), normalised levels per
+    /// pixel: the border stage reweights with it. Empty when not known.
+    pub grad: Vec<[f32; 2]>,
 }
 
 /// A frame's intensities normalised to `[0, 1]`.
@@ -179,6 +182,7 @@ struct Sampler {
     vig0: VignetteModel,
     obs: Vec<Obs>,
     pos: Vec<[f32; 2]>,
+    grad: Vec<[f32; 2]>,
 }
 
 impl Sampler {
@@ -192,6 +196,7 @@ impl Sampler {
             vig0: VignetteModel::centered(w, h, [0.0; 3]),
             obs: Vec::new(),
             pos: Vec::new(),
+            grad: Vec::new(),
         }
     }
 
@@ -234,6 +239,7 @@ impl Sampler {
             };
             let g2 = (gx * gx + gy * gy) / (GRAD_HALF_WEIGHT * GRAD_HALF_WEIGHT);
             self.pos.push([x, y]);
+            self.grad.push([gx, gy]);
             self.obs.push(Obs {
                 point: (id * self.n_off + o) as u32,
                 frame: k as u32,
@@ -251,6 +257,7 @@ impl Sampler {
         let Self {
             obs,
             pos,
+            grad,
             n_off,
             max_points,
             ..
@@ -270,6 +277,7 @@ impl Sampler {
         order.sort_by_key(|&i| (obs[i as usize].point, obs[i as usize].frame));
         let mut obs: Vec<Obs> = order.iter().map(|&i| obs[i as usize]).collect();
         let mut pos: Vec<[f32; 2]> = order.iter().map(|&i| pos[i as usize]).collect();
+        let mut grad: Vec<[f32; 2]> = order.iter().map(|&i| grad[i as usize]).collect();
         drop(order);
         let n_raw = (track_len.len() * n_off) as u32;
         let mut count = vec![0u32; n_raw as usize];
@@ -286,6 +294,8 @@ impl Sampler {
         }
         let mut keep = obs.iter().map(|o| remap[o.point as usize] != u32::MAX);
         pos.retain(|_| keep.next().unwrap_or(false));
+        let mut keep = obs.iter().map(|o| remap[o.point as usize] != u32::MAX);
+        grad.retain(|_| keep.next().unwrap_or(false));
         obs.retain_mut(|o| {
             let m = remap[o.point as usize];
             o.point = m;
@@ -305,6 +315,7 @@ impl Sampler {
             mean_len,
             pos,
             mean_level: Vec::new(),
+            grad,
         })
     }
 }
