@@ -64,21 +64,14 @@ pub(super) fn refit(
     {
         return Ok(None);
     }
-    let log_m = log_mean(input.mean_level, (w, h));
-    let limit = GAUGE_DISC * c.radius_px;
+    let weights = weights(c, input, (w, h));
     let mut obs = input.obs.to_vec();
     let mut changed = 0;
-    for ((o, p), g) in obs.iter_mut().zip(input.pos).zip(input.grad) {
-        let (x, y) = (f64::from(p[0]), f64::from(p[1]));
-        if o.weight == 0.0 || (x - c.center[0]).hypot(y - c.center[1]) <= limit {
-            continue;
+    for (o, &b) in obs.iter_mut().zip(&weights) {
+        if o.weight != 0.0 && b != o.weight {
+            o.weight = b;
+            changed += 1;
         }
-        let [lx, ly] = log_gradient(&log_m, (w, h), x, y);
-        let v = f64::from(o.value);
-        let (sx, sy) = (f64::from(g[0]) - v * lx, f64::from(g[1]) - v * ly);
-        let g2 = (sx * sx + sy * sy) / f64::from(GRAD_HALF_WEIGHT).powi(2);
-        o.weight = (1.0 / (1.0 + g2)) as f32;
-        changed += 1;
     }
     if changed == 0 {
         return Ok(None);
@@ -93,6 +86,30 @@ pub(super) fn refit(
     };
     let rep = refine(&obs, &cfg, state, progress)?;
     Ok(Some((changed, rep)))
+}
+
+/// The samples' weights with those beyond [`GAUGE_DISC`] of circle `c`'s radius from the
+/// scene's gradient alone (see the module doc); the others as they are.
+fn weights(c: &ImageCircle, input: &BorderInputs<'_>, (w, h): (usize, usize)) -> Vec<f32> {
+    let log_m = log_mean(input.mean_level, (w, h));
+    let limit = GAUGE_DISC * c.radius_px;
+    input
+        .obs
+        .iter()
+        .zip(input.pos)
+        .zip(input.grad)
+        .map(|((o, p), g)| {
+            let (x, y) = (f64::from(p[0]), f64::from(p[1]));
+            if o.weight == 0.0 || (x - c.center[0]).hypot(y - c.center[1]) <= limit {
+                return o.weight;
+            }
+            let [lx, ly] = log_gradient(&log_m, (w, h), x, y);
+            let v = f64::from(o.value);
+            let (sx, sy) = (f64::from(g[0]) - v * lx, f64::from(g[1]) - v * ly);
+            let g2 = (sx * sx + sy * sy) / f64::from(GRAD_HALF_WEIGHT).powi(2);
+            (1.0 / (1.0 + g2)) as f32
+        })
+        .collect()
 }
 
 /// `ln M` of the mean levels box-filtered over 3 × 3, floored at 10⁻³ (black beyond the
