@@ -31,7 +31,9 @@ pub(super) const KNOTS: usize = 8;
 /// frame. 18 were chosen with equal steps in `r` (`fisheye` 0.0068 → 0.0050, `fisheye-eval`
 /// 0.0178 → 0.0092 from 12; held out on `fisheye-eval4`, see the README's limits); with equal
 /// area, 12 and 18 were within one sequence of each other on `fisheye-eval2` (6 and 7 of 12
-/// within every target), so 18 stayed.
+/// within every target), so 18 stayed. 24, tried after the border stage (`super::border`):
+/// `fisheye-eval` 10 of 11 either way (vignette median 0.0049 → 0.0048), `fisheye-eval2` 10 of
+/// 12 either way (0.0058 → 0.0060), `fisheye` no better on the nine sequences run; 18 stays.
 pub(super) const CIRCLE_KNOTS: usize = 18;
 
 /// Iteration limit of the spline stage: it starts at the polynomial's optimum, and the rest
