@@ -23,11 +23,11 @@
 //! Held, not refitted: with the response and the exposures free, the same weights mended the
 //! vignetting on five border misses (0.0166 → 0.0086 on `fisheye-eval8#11`) but flipped two
 //! sequences of about thirty to a wrong response (`fisheye-eval2#1` 0.0021 → 0.026,
-//! `fisheye-eval9#4` 0.0007 → 0.050): there the border's many down-weighted dark samples,
-//! once weighted up, pulled the response's low end. Held, those two keep their response and
-//! their vignetting improves (`fisheye-eval2#1` 0.0069 → 0.0048).
+//! `fisheye-eval9#4` 0.0007 → 0.050; why those two and no others was not traced). Held,
+//! those two keep their response and their vignetting improves (`fisheye-eval2#1` 0.0069 →
+//! 0.0048).
 
-use super::super::joint::{JointConfig, JointReport, JointState, Obs, refine};
+use super::super::joint::{JointConfig, JointState, Obs, refine};
 use super::circle::{self, GAUGE_DISC, ImageCircle};
 use super::observe::GRAD_HALF_WEIGHT;
 use super::vig_model::SPLINE_ITERATIONS;
@@ -53,7 +53,7 @@ pub(super) fn refit(
     joint: &JointConfig,
     state: &mut JointState,
     progress: &dyn Progress,
-) -> CoreResult<Option<(usize, JointReport)>> {
+) -> CoreResult<Option<usize>> {
     let n = input.obs.len();
     if state.spline.is_none()
         || input.grad.len() != n
@@ -84,8 +84,8 @@ pub(super) fn refit(
         label: "vignette_border",
         ..joint.clone()
     };
-    let rep = refine(&obs, &cfg, state, progress)?;
-    Ok(Some((changed, rep)))
+    refine(&obs, &cfg, state, progress)?;
+    Ok(Some(changed))
 }
 
 /// The samples' weights with those beyond [`GAUGE_DISC`] of circle `c`'s radius from the

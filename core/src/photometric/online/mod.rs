@@ -467,7 +467,7 @@ pub(crate) fn fit(
             grad: &grad,
             mean_level: &mean_level,
         };
-        if let Some((n, _)) = border::refit(c, &input, (w, h), &joint, &mut state, progress)? {
+        if let Some(n) = border::refit(c, &input, (w, h), &joint, &mut state, progress)? {
             model.spline = state.spline.clone();
             vignette_choice.reason.push_str(&format!(
                 "; refitted over the border (beyond {:.0} % of the circle's radius) with \
