@@ -292,10 +292,15 @@ impl Sampler {
             remap[p as usize] = n_points;
             n_points += 1;
         }
-        let mut keep = obs.iter().map(|o| remap[o.point as usize] != u32::MAX);
-        pos.retain(|_| keep.next().unwrap_or(false));
-        let mut keep = obs.iter().map(|o| remap[o.point as usize] != u32::MAX);
-        grad.retain(|_| keep.next().unwrap_or(false));
+        // Positions and gradients follow their observations (before `obs` is renumbered).
+        let kept: Vec<bool> = obs
+            .iter()
+            .map(|o| remap[o.point as usize] != u32::MAX)
+            .collect();
+        let mut keep = kept.iter();
+        pos.retain(|_| keep.next().copied().unwrap_or(false));
+        let mut keep = kept.iter();
+        grad.retain(|_| keep.next().copied().unwrap_or(false));
         obs.retain_mut(|o| {
             let m = remap[o.point as usize];
             o.point = m;
