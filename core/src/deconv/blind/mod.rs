@@ -261,6 +261,9 @@ pub fn blind_deconv(
     Ok(BlindOutput { image, psf })
 }
 
+/// Progress step name of the kernel estimate's alternations.
+const KERNEL_STEP: &str = "blind_kernel";
+
 /// Pyramid step between levels (Pan et al. use √½).
 const LEVEL_RATIO: f64 = std::f64::consts::FRAC_1_SQRT_2;
 
@@ -336,10 +339,7 @@ fn estimate_kernel_traced(
 ) -> CoreResult<Psf> {
     params.validate()?;
     super::check_inputs(img, &Psf::identity())?;
-    let ks = match params.kernel_size {
-        Some(_) => params.kernel_size_for(img.width, img.height)?,
-        None => adaptive_kernel_size(img, params.final_tv.saturation.map(|v| v as f32), progress)?,
-    };
+    let ks = kernel_window(img, params, progress)?;
     let levels = ((5.0 / ks as f64).ln() / LEVEL_RATIO.ln()).floor().max(0.0) as usize + 1;
     let sizes: Vec<usize> = (0..levels)
         .rev()
@@ -415,6 +415,15 @@ fn estimate_kernel_traced(
         }
     }
     Psf::from_weights(k_size, k_size, kernel)
+}
+
+/// The kernel window of `img`: [`BlindParams::kernel_size`] when given, else
+/// [`adaptive_kernel_size`].
+fn kernel_window(img: &Plane, params: &BlindParams, progress: &dyn Progress) -> CoreResult<usize> {
+    match params.kernel_size {
+        Some(_) => params.kernel_size_for(img.width, img.height),
+        None => adaptive_kernel_size(img, params.final_tv.saturation.map(|v| v as f32), progress),
+    }
 }
 
 /// Default of [`BlindParams::kernel_threshold`]: entries of the kernel below this fraction of its
@@ -561,7 +570,7 @@ fn estimate_level(
             params.kernel_threshold.unwrap_or(DEFAULT_KERNEL_THRESHOLD),
         );
         lambda = (lambda / 1.1).max(1e-4);
-        progress.report("blind_kernel", (done + it + 1) as u64, total as u64);
+        progress.report(KERNEL_STEP, (done + it + 1) as u64, total as u64);
     }
     Ok(kernel)
 }

@@ -7,6 +7,8 @@
 //! are estimated and the one whose restoration explains the photo better *and* is sharper
 //! wins ([`selection_score`]).
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use rayon::prelude::*;
 
 use super::super::ops::SparseKernel;
@@ -57,8 +59,17 @@ pub fn estimate_kernel_restored(
             uncertain_below: None,
         });
     }
+    // The window is the same for both candidates: estimate it once (after the checks that
+    // `estimate_kernel_traced` would make first).
+    params.validate()?;
+    super::super::check_inputs(img, &Psf::identity())?;
+    let params = &BlindParams {
+        kernel_size: Some(super::kernel_window(img, params, progress)?),
+        ..params.clone()
+    };
+    let done = [AtomicU64::new(0), AtomicU64::new(0)];
     // Each candidate: its kernel, its restoration and the blind score of the pair.
-    let candidate = |index: u64, threshold: f64| -> CoreResult<(f64, KernelEstimate)> {
+    let candidate = |index: usize, threshold: f64| -> CoreResult<(f64, KernelEstimate)> {
         let fixed = BlindParams {
             kernel_threshold: Some(threshold),
             ..params.clone()
@@ -66,7 +77,7 @@ pub fn estimate_kernel_restored(
         let part = Share {
             inner: progress,
             index,
-            count: 2,
+            done: &done,
         };
         let psf = super::estimate_kernel_traced(img, &fixed, &part, None, None)?;
         let image = tv_deconv(img, &psf, &params.final_tv, &part)?;
@@ -84,8 +95,13 @@ pub fn estimate_kernel_restored(
             },
         ))
     };
-    let default = candidate(0, DEFAULT_KERNEL_THRESHOLD)?;
-    let low = candidate(1, LOW_KERNEL_THRESHOLD)?;
+    // The two estimates are independent; run side by side they keep both cores busy where
+    // one alone leaves gaps (serial steps between its parallel FFT passes).
+    let (default, low) = rayon::join(
+        || candidate(0, DEFAULT_KERNEL_THRESHOLD),
+        || candidate(1, LOW_KERNEL_THRESHOLD),
+    );
+    let (default, low) = (default?, low?);
     let agreement = Some(kernel_agreement(
         &default.1.psf,
         &low.1.psf,
@@ -101,18 +117,30 @@ pub fn estimate_kernel_restored(
     })
 }
 
-/// Reports one of `count` consecutive runs of the same steps as its share of a single bar, so
-/// that a job's progress never runs backwards when the second candidate starts.
+/// Reports one of two concurrent candidate runs as its share of a single bar. Each run's place
+/// is kept in thousandths of its whole run (the kernel estimate as the first
+/// [`KERNEL_SHARE`], the restoration as the rest) and the bar shows the sum of both runs, so
+/// it never runs backwards however the two interleave.
 struct Share<'a> {
     inner: &'a dyn Progress,
-    index: u64,
-    count: u64,
+    index: usize,
+    done: &'a [AtomicU64; 2],
 }
+
+/// Share of one candidate's run reported for its kernel estimate (most of its time).
+const KERNEL_SHARE: f64 = 0.8;
 
 impl Progress for Share<'_> {
     fn report(&self, step: &str, done: u64, total: u64) {
-        self.inner
-            .report(step, self.index * total + done, self.count * total);
+        let f = done.min(total) as f64 / total.max(1) as f64;
+        let place = if step == super::KERNEL_STEP {
+            KERNEL_SHARE * f
+        } else {
+            KERNEL_SHARE + (1.0 - KERNEL_SHARE) * f
+        };
+        self.done[self.index].fetch_max((place * 1000.0) as u64, Ordering::Relaxed);
+        let sum = self.done.iter().map(|d| d.load(Ordering::Relaxed)).sum();
+        self.inner.report(step, sum, 2000);
     }
 
     fn is_canceled(&self) -> bool {
