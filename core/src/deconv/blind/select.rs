@@ -7,7 +7,7 @@
 //! are estimated and the one whose restoration explains the photo better *and* is sharper
 //! wins ([`selection_score`]).
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
 
 use rayon::prelude::*;
 
@@ -67,7 +67,7 @@ pub fn estimate_kernel_restored(
         kernel_size: Some(super::kernel_window(img, params, progress)?),
         ..params.clone()
     };
-    let done = [AtomicU64::new(0), AtomicU64::new(0)];
+    let done = Mutex::new([0u64; 2]);
     // Each candidate: its kernel, its restoration and the blind score of the pair.
     let candidate = |index: usize, threshold: f64| -> CoreResult<(f64, KernelEstimate)> {
         let fixed = BlindParams {
@@ -124,7 +124,8 @@ pub fn estimate_kernel_restored(
 struct Share<'a> {
     inner: &'a dyn Progress,
     index: usize,
-    done: &'a [AtomicU64; 2],
+    /// Each run's place, in thousandths; under a lock so that reports reach `inner` in order.
+    done: &'a Mutex<[u64; 2]>,
 }
 
 /// Share of one candidate's run reported for its kernel estimate (most of its time).
@@ -138,9 +139,9 @@ impl Progress for Share<'_> {
         } else {
             KERNEL_SHARE + (1.0 - KERNEL_SHARE) * f
         };
-        self.done[self.index].fetch_max((place * 1000.0) as u64, Ordering::Relaxed);
-        let sum = self.done.iter().map(|d| d.load(Ordering::Relaxed)).sum();
-        self.inner.report(step, sum, 2000);
+        let mut done = self.done.lock().unwrap_or_else(|e| e.into_inner());
+        done[self.index] = done[self.index].max((place * 1000.0) as u64);
+        self.inner.report(step, done[0] + done[1], 2000);
     }
 
     fn is_canceled(&self) -> bool {
@@ -236,6 +237,35 @@ mod tests {
         // Noise on the restoration: worse fit and denser gradients.
         let noisy = add_noise(&x, 0.02, 3);
         assert!(selection_score(&blurred, &noisy, &k) > 2.0 * base);
+    }
+
+    /// The two candidates run side by side and report into one bar: it never runs backwards
+    /// and ends full.
+    #[test]
+    fn both_candidates_share_one_monotone_bar() {
+        struct Record(Mutex<Vec<(u64, u64)>>);
+        impl Progress for Record {
+            fn report(&self, _step: &str, done: u64, total: u64) {
+                self.0.lock().expect("lock").push((done, total));
+            }
+            fn is_canceled(&self) -> bool {
+                false
+            }
+        }
+        let sharp = scene(96, 80);
+        let truth = Psf::motion(7.0, 30.0).expect("motion");
+        let blurred = add_noise(&blur_reflect(&sharp, &truth), 0.01, 9);
+        let params = BlindParams {
+            kernel_size: Some(11),
+            ..BlindParams::default()
+        };
+        let record = Record(Mutex::new(Vec::new()));
+        estimate_kernel_restored(&blurred, &params, &record).expect("estimate");
+        let seen = record.0.into_inner().expect("lock");
+        assert!(seen.len() > 4, "{seen:?}");
+        assert!(seen.iter().all(|&(_, total)| total == 2000), "{seen:?}");
+        assert!(seen.windows(2).all(|w| w[0].0 <= w[1].0), "{seen:?}");
+        assert_eq!(seen.last().map(|s| s.0), Some(2000));
     }
 
     /// Without a fixed threshold the estimate is the better-scoring of the two fixed ones, and
