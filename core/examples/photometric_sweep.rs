@@ -637,30 +637,27 @@ fn case(set: &str, i: usize, width: usize, height: usize) -> (String, SynthCamer
             };
         }
     }
-    if fisheye {
+    if fisheye || fisheye_wide {
         // A fisheye's image circle (tuning): cos⁴ inside a logistic border, nearly black
-        // corners, the circle cutting the frame's top and bottom or only its corners.
+        // corners, the circle cutting the frame's top and bottom or only its corners; for
+        // `fisheye-wide` the border at or past the corners (so that no circle is found) and
+        // off-centre by up to ±6 px per axis.
         if i % 4 >= 2 {
             video.scene = SceneForm::Blocks;
         }
+        let (r0, dr) = if fisheye_wide {
+            (0.9, 0.15)
+        } else {
+            (0.65, 0.25)
+        };
         video.vignette = VignetteForm::FisheyeLogistic {
             corner_deg: 40.0 + 25.0 * rng.uniform(),
-            radius: 0.65 + 0.25 * rng.uniform(),
+            radius: r0 + dr * rng.uniform(),
             width: 0.02 + 0.03 * rng.uniform(),
         };
-    }
-    if fisheye_wide {
-        // Tuning: `fisheye`'s logistic circle, but wide (reaching the corners on some cases,
-        // so that no circle is found) and off-centre by up to ±6 px per axis.
-        if i % 4 >= 2 {
-            video.scene = SceneForm::Blocks;
+        if fisheye_wide {
+            video.vignette_shift = [12.0 * (rng.uniform() - 0.5), 12.0 * (rng.uniform() - 0.5)];
         }
-        video.vignette = VignetteForm::FisheyeLogistic {
-            corner_deg: 40.0 + 25.0 * rng.uniform(),
-            radius: 0.9 + 0.15 * rng.uniform(),
-            width: 0.02 + 0.03 * rng.uniform(),
-        };
-        video.vignette_shift = [12.0 * (rng.uniform() - 0.5), 12.0 * (rng.uniform() - 0.5)];
     }
     if fisheye_eval {
         // Held out: another border law (a raised cosine reaching 0), off-centre, `eval`'s
