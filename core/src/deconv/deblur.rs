@@ -63,9 +63,9 @@ pub struct DeblurParams {
     /// For `blind` only: kernel entries below this fraction of the kernel's maximum are dropped
     /// after every kernel step (0.01–0.5). Default (`null`): kernels at 0.1 and 0.05 are both
     /// estimated and the one whose restoration explains the image better and is sharper is
-    /// kept (twice the time). 0.05 keeps the faint strokes of long camera-shake paths that end
-    /// in a bright dwell point; 0.1 keeps less of the least squares' noise, which chessboards
-    /// and repetitive textures need.
+    /// kept (twice the computation; the two run side by side). 0.05 keeps the faint strokes
+    /// of long camera-shake paths that end in a bright dwell point; 0.1 keeps less of the
+    /// least squares' noise, which chessboards and repetitive textures need.
     pub kernel_threshold: Option<f64>,
     /// Gyro trace, exposure and intrinsics for `gyro`.
     pub gyro: Option<GyroPsfParams>,
