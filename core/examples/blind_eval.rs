@@ -63,6 +63,8 @@
 //! for kernel sides ≤ 29 px / beyond (generator extent ≤ 27 px / beyond).
 //!
 //! `time` measures one 255² case and one ~1 Mpx image (1155×866, 31 px shake kernel).
+//! `large` / `large-eval` score whole photos of about a megapixel with the kernel estimated on
+//! the default region and on the whole photo (`common/blind_large.rs`).
 //!
 //! Environment: `CALIPER_BLIND_DATA` (data root), `BLIND_NOISE=σ` (noise of the generated
 //! cases instead of 0.01; the splits' published numbers are all at 0.01), `BLIND_KS` /
@@ -125,6 +127,8 @@ mod rng;
 use rng::Rng;
 #[path = "common/blind_peer.rs"]
 mod blind_peer;
+#[path = "common/blind_large.rs"]
+mod large;
 #[path = "common/levin.rs"]
 mod levin;
 #[path = "common/textures.rs"]
@@ -1016,6 +1020,14 @@ fn time() {
         t.elapsed().as_secs_f64(),
         out.psf.width
     );
+    // The share of one final TV solve in that time (the rest is the two kernel estimates and
+    // their restorations, run side by side).
+    let t = Instant::now();
+    tv_deconv(&blurred, &out.psf, &params.final_tv, &NoProgress).expect("tv");
+    println!(
+        "1155x866 one TV solve alone: {:.2} s",
+        t.elapsed().as_secs_f64()
+    );
 }
 
 /// Blind selection criteria of a restoration `x` with kernel `k` of `y`: mean squared reblur
@@ -1255,6 +1267,13 @@ fn main() {
         Some("levin") => run(Split::Levin, only, verbose),
         Some("levin-synth") => run(Split::LevinSynth, only, verbose),
         Some("time") => time(),
+        Some("large") => large::large(false),
+        Some("large-eval") => large::large(true),
+        Some("huge") => large::huge(
+            args.get(1)
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(BlindParams::default().kernel_region),
+        ),
         // `size`: blur-extent estimate vs truth; `starts`: several windows per TUNE case with
         // their true ratios and blind selection criteria (for offline analysis).
         Some("size") => sizes(Split::Tune),
@@ -1278,7 +1297,7 @@ fn main() {
         Some("size-texture") => sizes(Split::Texture),
         Some("size-eval") => sizes(Split::Eval),
         _ => eprintln!(
-            "usage: blind_eval tune|tremor|texture|eval|eval2|eval3|eval4|eval5|eval6|eval7|eval8|levin|levin-synth|time|size|size-tremor|size-texture|size-eval|starts|thresholds [SPLIT] [--only TEXT] [-v]"
+            "usage: blind_eval tune|tremor|texture|eval|eval2|eval3|eval4|eval5|eval6|eval7|eval8|levin|levin-synth|time|large|large-eval|huge [SIDE]|size|size-tremor|size-texture|size-eval|starts|thresholds [SPLIT] [--only TEXT] [-v]"
         ),
     }
 }

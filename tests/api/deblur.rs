@@ -163,6 +163,15 @@ async fn deblur_refuses_inconsistent_params_before_queueing() {
             json!({"method": "tv", "psf": {"width": 1, "height": 1, "data": [1]}, "kernel_threshold": 0.05}),
             Some("params.kernel_threshold"),
         ),
+        // A region below 128 px, and one for a method that estimates no kernel.
+        (
+            json!({"method": "blind", "kernel_region": 64}),
+            Some("params.kernel_region"),
+        ),
+        (
+            json!({"method": "tv", "psf": {"width": 1, "height": 1, "data": [1]}, "kernel_region": 512}),
+            Some("params.kernel_region"),
+        ),
         // Unknown method.
         (json!({"method": "magic"}), None),
     ];
@@ -253,6 +262,29 @@ fn offline_deblur_writes_the_image_under_its_name_and_the_kernel() {
         k["agreement"].is_null() && k["uncertain"].is_null() && k["uncertain_below"].is_null(),
         "{doc}"
     );
+    // A photo larger than `--kernel-region` (and 16 kernel windows): the document names the
+    // region the kernel came from, inside the photo.
+    let wide = dir.path().join("wide.png");
+    std::fs::write(&wide, png(&box_blur(&sharp_image(200, 150), 5))).expect("write");
+    let o = std::process::Command::new(caliper_bin())
+        .args(["run", "deblur", "--method", "blind", "--kernel-size", "9"])
+        .args(["--kernel-threshold", "0.1", "--kernel-region", "128"])
+        .arg(&wide)
+        .output()
+        .expect("run caliper");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let doc: Value = serde_json::from_slice(&o.stdout).expect("document");
+    let r = &doc["parameters"]["images"][0]["kernel"]["region"];
+    // 16 windows of 9 px: more than the 128 px asked for.
+    assert_eq!(
+        (&r["width"], &r["height"]),
+        (&json!(144), &json!(144)),
+        "{doc}"
+    );
+    let (x, y) = (r["x"].as_u64().expect("x"), r["y"].as_u64().expect("y"));
+    assert!(x + 144 <= 200 && y + 144 <= 150, "{doc}");
+    // The photo that fits the default region has none.
+    assert!(k["region"].is_null(), "{k}");
     // A kernel file that is not a kernel: clear error, non-zero exit.
     std::fs::write(&kernel, "1 2\n3\n").expect("write");
     let o = run(&["--method", "wiener"], false);

@@ -67,6 +67,13 @@ pub struct DeblurParams {
     /// of long camera-shake paths that end in a bright dwell point; 0.1 keeps less of the
     /// least squares' noise, which chessboards and repetitive textures need.
     pub kernel_threshold: Option<f64>,
+    /// For `blind` only: side (px, 128–16384) of the square region of a larger photo that
+    /// the kernel is estimated on (at least 16 kernel windows), the part with the most
+    /// strong edges in every direction, off clipped pixels; the whole photo is then restored
+    /// with that kernel. Default (`null`): 2048, so that the kernel estimate's time and
+    /// memory stop growing beyond 4 Mpx. Smaller is faster and less accurate (README,
+    /// Benchmarks). A value at least the photo's longer side estimates on the whole photo.
+    pub kernel_region: Option<usize>,
     /// Gyro trace, exposure and intrinsics for `gyro`.
     pub gyro: Option<GyroPsfParams>,
     /// For `gyro`: `[nx, ny]` cells, each restored with the kernel drawn at its centre and
@@ -92,6 +99,7 @@ impl Default for DeblurParams {
             saturation: Some(super::tv::DEFAULT_SATURATION),
             kernel_size: None,
             kernel_threshold: None,
+            kernel_region: None,
             gyro: None,
             gyro_grid: None,
             frames: None,
@@ -203,6 +211,12 @@ impl DeblurParams {
                 "only used by method blind",
             ));
         }
+        if self.kernel_region.is_some() && self.method != Blind {
+            return Err(CoreError::param(
+                "kernel_region",
+                "only used by method blind",
+            ));
+        }
         if let Some(v) = self.nsr
             && !(v.is_finite() && v >= 0.0)
         {
@@ -234,6 +248,7 @@ impl DeblurParams {
         BlindParams {
             kernel_size: self.kernel_size,
             kernel_threshold: self.kernel_threshold,
+            kernel_region: self.kernel_region.unwrap_or(super::DEFAULT_KERNEL_REGION),
             final_tv: TvParams {
                 lambda: self.tv_lambda,
                 iterations: self.iterations.unwrap_or(TvParams::default().iterations),
@@ -277,6 +292,8 @@ pub struct DeblurOutput {
     /// With `kernel_agreement`: the agreement below which the kernel counts as uncertain for
     /// this photo's noise ([`super::uncertain_agreement`]).
     pub kernel_uncertain_below: Option<f64>,
+    /// For `blind`: the region of a larger photo the kernel was estimated on.
+    pub kernel_region: Option<super::Region>,
 }
 
 /// Deblurs an 8/16-bit (or float) grey, grey+alpha, RGB or RGBA image; the result has the same
@@ -297,6 +314,7 @@ pub fn deblur_image(
     let mut kernel_threshold: Option<f64> = None;
     let mut kernel_agreement: Option<f64> = None;
     let mut kernel_uncertain_below: Option<f64> = None;
+    let mut kernel_region: Option<super::Region> = None;
     let psf = match params.method {
         DeblurMethod::Wiener | DeblurMethod::RichardsonLucy | DeblurMethod::Tv => params
             .psf
@@ -308,6 +326,7 @@ pub fn deblur_image(
             kernel_threshold = Some(e.threshold);
             kernel_agreement = e.agreement;
             kernel_uncertain_below = e.uncertain_below;
+            kernel_region = e.region;
             e.psf
         }
         DeblurMethod::BlindRl => {
@@ -375,6 +394,7 @@ pub fn deblur_image(
         kernel_threshold,
         kernel_agreement,
         kernel_uncertain_below,
+        kernel_region,
     })
 }
 

@@ -42,10 +42,10 @@ mod tests;
 mod tests_solvers;
 
 pub use blind::{
-    AGREEMENT_SHIFT, BlindOutput, BlindParams, DEFAULT_KERNEL_THRESHOLD, KernelEstimate,
-    KernelStart, LOW_KERNEL_THRESHOLD, UNCERTAIN_AGREEMENT, blind_deconv, estimate_blur_extent,
-    estimate_kernel, estimate_kernel_from, estimate_kernel_restored, estimate_kernel_trace,
-    gradient_autocorrelation, kernel_agreement, uncertain_agreement,
+    AGREEMENT_SHIFT, BlindOutput, BlindParams, DEFAULT_KERNEL_REGION, DEFAULT_KERNEL_THRESHOLD,
+    KernelEstimate, KernelStart, LOW_KERNEL_THRESHOLD, Region, UNCERTAIN_AGREEMENT, blind_deconv,
+    estimate_blur_extent, estimate_kernel, estimate_kernel_from, estimate_kernel_restored,
+    estimate_kernel_trace, gradient_autocorrelation, kernel_agreement, uncertain_agreement,
 };
 pub use blind_rl::blind_richardson_lucy;
 pub use boundary::{PadLayout, reflect};

@@ -123,6 +123,40 @@ fn blind_recovers_motion_kernel() {
     assert!(ratio <= 3.0, "error ratio {ratio:.2}");
 }
 
+/// On a photo larger than `kernel_region` the kernel comes from a region of that side, is
+/// reported with it, and restores the whole photo within the benchmark's error ratio; the
+/// region is at least 16 kernel windows wide.
+#[test]
+fn blind_estimates_on_a_region_of_a_larger_photo() {
+    let sharp = shapes(320, 240, 5);
+    let truth = Psf::motion(7.0, 120.0).expect("motion");
+    let blurred = add_noise(&blur_reflect(&sharp, &truth), 0.01, 13);
+    let params = BlindParams {
+        kernel_size: Some(11),
+        kernel_region: 128,
+        ..BlindParams::default()
+    };
+    let est = estimate_kernel_restored(&blurred, &params, &NoProgress).expect("blind");
+    let r = est.region.expect("a region");
+    // 16 × 11 px, more than the 128 asked for.
+    assert_eq!((r.width, r.height), (176, 176));
+    assert!(r.x + r.width <= 320 && r.y + r.height <= 240, "{r:?}");
+    // The restoration of a region is not the photo's: the caller restores the whole.
+    assert!(est.restored.is_none());
+    let image = tv_deconv(&blurred, &est.psf, &params.final_tv, &NoProgress).expect("tv");
+    let with_truth = tv_deconv(&blurred, &truth, &params.final_tv, &NoProgress).expect("tv");
+    let ratio = error_ratio_aligned(&sharp, &image, &with_truth, 16, 6).expect("ratio");
+    assert!(ratio <= 3.0, "error ratio {ratio:.2}");
+    // The whole photo when the region is at least its longer side.
+    let whole = BlindParams {
+        kernel_region: 320,
+        kernel_threshold: Some(0.1),
+        ..params
+    };
+    let est = estimate_kernel_restored(&blurred, &whole, &NoProgress).expect("blind");
+    assert!(est.region.is_none());
+}
+
 /// `kernel_threshold` is the cleaning every level applies: no entry of the estimate is below
 /// that fraction of its peak, and a lower threshold keeps more entries.
 #[test]

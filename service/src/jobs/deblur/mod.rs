@@ -274,6 +274,10 @@ pub(crate) fn restore(
         // Which of the blind estimates was kept (or the one asked for).
         kernel["cleaning_threshold"] = json!(t);
     }
+    if let Some(r) = out.kernel_region {
+        // The part of the photo the kernel was estimated on (`kernel_region`).
+        kernel["region"] = json!({"x": r.x, "y": r.y, "width": r.width, "height": r.height});
+    }
     if let (Some(a), Some(below)) = (out.kernel_agreement, out.kernel_uncertain_below) {
         // The two blind candidates disagree more than this photo's noise explains: the kernel
         // (and so the restoration) is doubtful.
@@ -335,6 +339,10 @@ pub struct DeblurArgs {
     /// (0.01–0.5) [default: both 0.1 and 0.05 tried, the blindly better kept].
     #[arg(long)]
     pub kernel_threshold: Option<f64>,
+    /// For `--method blind`: side (px) of the region of a larger photo the kernel is
+    /// estimated on (128–16384; at least 16 kernel windows) [default: 2048].
+    #[arg(long)]
+    pub kernel_region: Option<usize>,
     /// Level (0.5–1) at and above which pixels count as clipped highlights, or `off`
     /// [default: 0.99].
     #[arg(long, value_parser = parse_saturation)]
@@ -447,6 +455,7 @@ fn params_from_flags(a: &DeblurArgs) -> Result<Value, RunError> {
         ("tv_lambda", a.tv_lambda.map(|v| json!(v))),
         ("kernel_size", a.kernel_size.map(|v| json!(v))),
         ("kernel_threshold", a.kernel_threshold.map(|v| json!(v))),
+        ("kernel_region", a.kernel_region.map(|v| json!(v))),
         ("saturation", a.saturation.clone()),
         ("gyro_grid", a.gyro_grid.map(|v| json!(v))),
     ] {
