@@ -14,7 +14,8 @@
 use std::time::Instant;
 
 use caliper_core::deconv::{
-    BlindParams, Plane, Psf, error_ratio_aligned, estimate_kernel_restored, tv_deconv,
+    BlindParams, KernelEstimate, Plane, Psf, error_ratio_aligned, estimate_kernel_restored,
+    tv_deconv,
 };
 use caliper_core::progress::NoProgress;
 
@@ -77,6 +78,18 @@ fn whole_case(
     )
 }
 
+/// `blind_deconv` keeping the estimate's region: the restoration, the estimate and the
+/// seconds both took.
+fn restore(blurred: &Plane, params: &BlindParams) -> (Plane, KernelEstimate, f64) {
+    let t = Instant::now();
+    let mut est = estimate_kernel_restored(blurred, params, &NoProgress).expect("blind");
+    let image = match est.restored.take() {
+        Some(x) => x,
+        None => tv_deconv(blurred, &est.psf, &params.final_tv, &NoProgress).expect("tv"),
+    };
+    (image, est, t.elapsed().as_secs_f64())
+}
+
 /// Runs the split: per photo the error ratio and time with the default region and with the
 /// whole photo, then the tallies.
 pub(super) fn large(held_out: bool) {
@@ -114,13 +127,7 @@ pub(super) fn large(held_out: bool) {
                 kernel_region: side,
                 ..defaults.clone()
             };
-            let t = Instant::now();
-            let est = estimate_kernel_restored(&blurred, &params, &NoProgress).expect("blind");
-            let image = match est.restored {
-                Some(x) => x,
-                None => tv_deconv(&blurred, &est.psf, &params.final_tv, &NoProgress).expect("tv"),
-            };
-            let dt = t.elapsed().as_secs_f64();
+            let (image, est, dt) = restore(&blurred, &params);
             let r = error_ratio_aligned(&sharp, &image, &truth, BORDER, MAX_SHIFT).expect("ratio");
             if let (0, Some(g)) = (v, est.region) {
                 region = format!("{}x{}+{}+{}", g.width, g.height, g.x, g.y);
@@ -168,13 +175,7 @@ pub(super) fn huge(side: usize) {
         kernel_region: side,
         ..BlindParams::default()
     };
-    let t = Instant::now();
-    let est = estimate_kernel_restored(&blurred, &params, &NoProgress).expect("blind");
-    let image = match est.restored {
-        Some(x) => x,
-        None => tv_deconv(&blurred, &est.psf, &params.final_tv, &NoProgress).expect("tv"),
-    };
-    let dt = t.elapsed().as_secs_f64();
+    let (image, est, dt) = restore(&blurred, &params);
     let truth = tv_deconv(&blurred, &psf, &params.final_tv, &NoProgress).expect("tv");
     let r = error_ratio_aligned(&sharp, &image, &truth, BORDER, MAX_SHIFT).expect("ratio");
     println!(
