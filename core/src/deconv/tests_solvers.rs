@@ -1,4 +1,8 @@
 //! Tests of the TV, blind, gyro and colour paths against in-process ground truth.
+//!
+//! One file over 600 lines: every test here draws on the same generated scenes and blur
+//! helpers at its top, and each test is short; split by solver, each part would import the
+//! same helpers for a handful of tests.
 
 use image::{DynamicImage, ImageBuffer, Luma, LumaA, Rgb, Rgba};
 

@@ -68,15 +68,19 @@ pub fn estimate_kernel_restored(
 ) -> CoreResult<KernelEstimate> {
     params.validate()?;
     super::super::check_inputs(img, &Psf::identity())?;
-    let clipped = params
-        .final_tv
-        .saturation
-        .and_then(|level| clipped_map(img, level as f32));
     // The window is the same for both candidates: estimate it once, on the whole photo.
     let window = super::kernel_window(img, params, progress)?;
     // A long kernel needs more of the photo than a short one (`REGION_PER_WINDOW`).
     let side = params.kernel_region.max(REGION_PER_WINDOW * window);
-    let region = kernel_region(img, side, clipped.as_deref(), progress)?;
+    let region = if img.width <= side && img.height <= side {
+        None
+    } else {
+        let clipped = params
+            .final_tv
+            .saturation
+            .and_then(|level| clipped_map(img, level as f32));
+        kernel_region(img, side, clipped.as_deref(), progress)?
+    };
     let cropped = region.map(|r| r.crop(img)).transpose()?;
     let part = cropped.as_ref().unwrap_or(img);
     let params = &BlindParams {
