@@ -1020,6 +1020,16 @@ fn time() {
         t.elapsed().as_secs_f64(),
         out.psf.width
     );
+    // The peer's kernel estimate on the same photo with the same window, timed by its own
+    // process (`BLIND_PEER`; it runs on one core).
+    if let Ok(cmd) = std::env::var("BLIND_PEER") {
+        let dir = std::env::temp_dir().join("blind_eval_time_peer");
+        std::fs::create_dir_all(&dir).expect("peer dir");
+        match blind_peer::estimate(&cmd, &blurred, out.psf.width, &dir, "mpx") {
+            Ok((_, secs)) => println!("1155x866 peer kernel estimate alone: {secs:.2} s"),
+            Err(e) => eprintln!("peer: {e}"),
+        }
+    }
     // The share of one final TV solve in that time (the rest is the two kernel estimates and
     // their restorations, run side by side).
     let t = Instant::now();

@@ -60,6 +60,10 @@ pub struct Fft2 {
     row_inv: Arc<dyn ComplexToReal<f32>>,
     col_fwd: Arc<dyn Fft<f32>>,
     col_inv: Arc<dyn Fft<f32>>,
+    /// Intermediate half-spectrum buffers returned by finished transforms, so that the
+    /// iterative solvers (hundreds of transforms of one size) do not allocate and page in a
+    /// fresh spectrum-sized buffer for every one of them.
+    spare: Arc<Mutex<Vec<Vec<C32>>>>,
 }
 
 impl Fft2 {
@@ -74,6 +78,25 @@ impl Fft2 {
             row_inv: real.plan_fft_inverse(width),
             col_fwd: complex.plan_fft_forward(height),
             col_inv: complex.plan_fft_inverse(height),
+            spare: Arc::default(),
+        }
+    }
+
+    /// A spectrum-sized buffer (contents unspecified) from the spares, or a new one.
+    fn take_spare(&self) -> Vec<C32> {
+        let n = self.spec_len();
+        let mut spare = self.spare.lock().unwrap_or_else(|e| e.into_inner());
+        spare
+            .pop()
+            .filter(|v| v.len() == n)
+            .unwrap_or_else(|| vec![C32::new(0.0, 0.0); n])
+    }
+
+    /// Returns a buffer from [`Fft2::take_spare`]; two are enough for any caller.
+    fn put_spare(&self, buf: Vec<C32>) {
+        let mut spare = self.spare.lock().unwrap_or_else(|e| e.into_inner());
+        if spare.len() < 2 {
+            spare.push(buf);
         }
     }
 
@@ -94,9 +117,17 @@ impl Fft2 {
     /// or two) rather than one strided read per value, which at 1080p misses cache and TLB on
     /// almost every access.
     pub fn forward(&self, input: &[f32]) -> Vec<C32> {
+        let mut spec = vec![C32::new(0.0, 0.0); self.spec_len()];
+        self.forward_into(input, &mut spec);
+        spec
+    }
+
+    /// [`Fft2::forward`] into `spec` (length [`Fft2::spec_len`], every value overwritten).
+    pub fn forward_into(&self, input: &[f32], spec: &mut [C32]) {
         let (h, w, wc) = (self.height, self.width, self.spec_width());
         debug_assert_eq!(input.len(), h * w);
-        let mut rows = vec![C32::new(0.0, 0.0); h * wc];
+        debug_assert_eq!(spec.len(), h * wc);
+        let mut rows = self.take_spare();
         rows.par_chunks_mut(wc).enumerate().for_each_init(
             || (vec![0.0f32; w], self.row_fwd.make_scratch_vec()),
             |(buf, scratch), (r, out)| {
@@ -111,7 +142,6 @@ impl Fft2 {
                 let _ = self.row_fwd.process_with_scratch(buf, out, scratch);
             },
         );
-        let mut spec = vec![C32::new(0.0, 0.0); h * wc];
         spec.par_chunks_mut(h * BLOCK).enumerate().for_each_init(
             || vec![C32::new(0.0, 0.0); self.col_fwd.get_inplace_scratch_len()],
             |scratch, (b, out)| {
@@ -125,7 +155,7 @@ impl Fft2 {
                 self.col_fwd.process_with_scratch(out, scratch);
             },
         );
-        spec
+        self.put_spare(rows);
     }
 
     /// Unnormalised inverse transform (the result is `height · width` times the signal).
@@ -133,14 +163,22 @@ impl Fft2 {
     /// Columns first (contiguous in the spectrum layout), then rows in blocks of [`BLOCK`], each
     /// block gathered with short contiguous reads per column (see [`Fft2::forward`]).
     pub fn inverse(&self, spec: &[C32]) -> Vec<f32> {
+        let mut out = vec![0.0f32; self.height * self.width];
+        self.inverse_into(spec, &mut out);
+        out
+    }
+
+    /// [`Fft2::inverse`] into `out` (length `height · width`, every value overwritten).
+    pub fn inverse_into(&self, spec: &[C32], out: &mut [f32]) {
         let (h, w, wc) = (self.height, self.width, self.spec_width());
         debug_assert_eq!(spec.len(), h * wc);
-        let mut cols = spec.to_vec();
+        debug_assert_eq!(out.len(), h * w);
+        let mut cols = self.take_spare();
+        cols.copy_from_slice(spec);
         cols.par_chunks_mut(h * BLOCK).for_each_init(
             || vec![C32::new(0.0, 0.0); self.col_inv.get_inplace_scratch_len()],
             |scratch, block| self.col_inv.process_with_scratch(block, scratch),
         );
-        let mut out = vec![0.0f32; h * w];
         out.par_chunks_mut(w * BLOCK).enumerate().for_each_init(
             || {
                 (
@@ -168,7 +206,7 @@ impl Fft2 {
                 }
             },
         );
-        out
+        self.put_spare(cols);
     }
 
     /// Spectrum of a kernel centred on the FFT origin (so that multiplying by it convolves
@@ -179,8 +217,24 @@ impl Fft2 {
         kh: usize,
         k: impl Fn(usize, usize) -> f64,
     ) -> Vec<C32> {
+        let mut plane = vec![0.0f32; self.height * self.width];
+        let mut spec = vec![C32::new(0.0, 0.0); self.spec_len()];
+        self.kernel_spectrum_into(kw, kh, k, &mut plane, &mut spec);
+        spec
+    }
+
+    /// [`Fft2::kernel_spectrum`] into `spec`, with `plane` (`height · width`, contents
+    /// unspecified) as the buffer for the wrapped kernel.
+    pub fn kernel_spectrum_into(
+        &self,
+        kw: usize,
+        kh: usize,
+        k: impl Fn(usize, usize) -> f64,
+        plane: &mut [f32],
+        spec: &mut [C32],
+    ) {
         let (h, w) = (self.height, self.width);
-        let mut plane = vec![0.0f32; h * w];
+        plane.fill(0.0);
         let (cx, cy) = (kw / 2, kh / 2);
         for y in 0..kh {
             let py = (y + h - cy) % h;
@@ -189,7 +243,7 @@ impl Fft2 {
                 plane[py * w + px] += k(x, y) as f32;
             }
         }
-        self.forward(&plane)
+        self.forward_into(plane, spec);
     }
 
     /// [`Fft2::kernel_spectrum`], faster for kernels of few rows (equal up to float rounding).

@@ -8,9 +8,16 @@ use super::fft::{C32, Fft2};
 /// Circular forward differences `(x[i+1] − x[i])` along rows (`gx`) and columns (`gy`).
 pub(super) fn grad(x: &[f32], width: usize) -> (Vec<f32>, Vec<f32>) {
     let n = x.len();
-    let height = n / width;
     let mut gx = vec![0.0f32; n];
     let mut gy = vec![0.0f32; n];
+    grad_into(x, width, &mut gx, &mut gy);
+    (gx, gy)
+}
+
+/// [`grad`] into `gx` and `gy` (each as long as `x`, every value overwritten), for loops that
+/// reuse their buffers.
+pub(super) fn grad_into(x: &[f32], width: usize, gx: &mut [f32], gy: &mut [f32]) {
+    let height = x.len() / width;
     gx.par_chunks_mut(width)
         .zip(gy.par_chunks_mut(width))
         .enumerate()
@@ -23,14 +30,12 @@ pub(super) fn grad(x: &[f32], width: usize) -> (Vec<f32>, Vec<f32>) {
                 ry[c] = next[c] - row[c];
             }
         });
-    (gx, gy)
 }
 
-/// Adjoint of [`grad`] (minus the divergence): `Dxᵀ gx + Dyᵀ gy`, circular.
-pub(super) fn grad_adjoint(gx: &[f32], gy: &[f32], width: usize) -> Vec<f32> {
-    let n = gx.len();
-    let height = n / width;
-    let mut out = vec![0.0f32; n];
+/// Adjoint of [`grad`] (minus the divergence), `Dxᵀ gx + Dyᵀ gy`, circular, into `out` (as
+/// long as `gx`, every value overwritten).
+pub(super) fn grad_adjoint_into(gx: &[f32], gy: &[f32], width: usize, out: &mut [f32]) {
+    let height = gx.len() / width;
     out.par_chunks_mut(width).enumerate().for_each(|(r, o)| {
         let prev_r = (r + height - 1) % height;
         let (rx, ry) = (
@@ -43,20 +48,35 @@ pub(super) fn grad_adjoint(gx: &[f32], gy: &[f32], width: usize) -> Vec<f32> {
             o[c] = (rx[cp] - rx[c]) + (py[c] - ry[c]);
         }
     });
-    out
 }
 
 /// `ifft(fft(x) · k) / N`: circular convolution by a kernel spectrum (conjugated for the adjoint).
 pub(super) fn convolve(fft: &Fft2, x: &[f32], kspec: &[C32], adjoint: bool) -> Vec<f32> {
+    let mut spec = vec![C32::new(0.0, 0.0); fft.spec_len()];
+    let mut out = vec![0.0f32; x.len()];
+    convolve_into(fft, x, kspec, adjoint, &mut spec, &mut out);
+    out
+}
+
+/// [`convolve`] into `out` (as long as `x`), with `spec` ([`Fft2::spec_len`], contents
+/// unspecified) as the spectrum buffer, for loops that reuse their buffers.
+pub(super) fn convolve_into(
+    fft: &Fft2,
+    x: &[f32],
+    kspec: &[C32],
+    adjoint: bool,
+    spec: &mut [C32],
+    out: &mut [f32],
+) {
     let scale = 1.0 / (fft.height * fft.width) as f32;
-    let mut spec = fft.forward(x);
+    fft.forward_into(x, spec);
     spec.par_iter_mut()
         .zip(kspec.par_iter())
         .for_each(|(s, k)| {
             let k = if adjoint { k.conj() } else { *k };
             *s = *s * k * scale;
         });
-    fft.inverse(&spec)
+    fft.inverse_into(spec, out);
 }
 
 /// A kernel as its non-zero taps, for direct circular convolution on a padded `height × width`

@@ -2,8 +2,8 @@
 
 use rayon::prelude::*;
 
-use super::fft::Fft2;
-use super::ops::{SparseKernel, convolve};
+use super::fft::{C32, Fft2};
+use super::ops::{SparseKernel, convolve_into};
 use super::{PadLayout, Plane, Psf, check_inputs};
 use crate::error::{CoreError, CoreResult};
 use crate::progress::Progress;
@@ -88,9 +88,13 @@ pub fn richardson_lucy(
         Some(fft.kernel_spectrum_direct(psf.width, psf.height, |x, y| psf.at(x, y)))
     };
     let width = fft.width;
-    let conv = |plane: &[f32], adjoint: bool, out: &mut Vec<f32>| match &kspec {
+    let mut spec = match kspec {
+        Some(_) => vec![C32::new(0.0, 0.0); fft.spec_len()],
+        None => Vec::new(),
+    };
+    let mut conv = |plane: &[f32], adjoint: bool, out: &mut [f32]| match &kspec {
         None => sparse.convolve_into(plane, width, adjoint, out),
-        Some(k) => *out = convolve(&fft, plane, k, adjoint),
+        Some(k) => convolve_into(&fft, plane, k, adjoint, &mut spec, out),
     };
 
     let mask = layout.mask();

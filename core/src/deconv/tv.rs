@@ -4,7 +4,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::fft::{C32, Fft2};
-use super::ops::{SparseKernel, grad, grad_adjoint};
+use super::ops::{SparseKernel, grad, grad_adjoint_into, grad_into};
 use super::wiener::{estimate_noise_sigma, gradient_power};
 use super::{PadLayout, Plane, Psf, check_inputs};
 use crate::error::{CoreError, CoreResult};
@@ -197,6 +197,15 @@ pub(super) fn admm_tv(
     } else {
         Vec::new()
     };
+    // Buffers of the x step, reused by every iteration (the arithmetic is the same as with
+    // fresh ones).
+    let mut div = vec![0.0f32; n];
+    let mut s_div = vec![C32::new(0.0, 0.0); fft.spec_len()];
+    let mut s_ua = if direct.is_some() {
+        Vec::new()
+    } else {
+        vec![C32::new(0.0, 0.0); fft.spec_len()]
+    };
     let thr = lambda / beta;
     let sat = saturation.unwrap_or(f32::INFINITY);
     for it in 0..iterations {
@@ -233,36 +242,37 @@ pub(super) fn admm_tv(
                 *dy = *wy - by;
             });
         // x step: (ρ KᵀK + β DᵀD) x = ρ Kᵀ(u − a) + β Dᵀ(w − b).
-        let mut div = grad_adjoint(&dx, &dy, width);
+        grad_adjoint_into(&dx, &dy, width, &mut div);
         if let Some(k) = direct {
             k.convolve_into(&ua, width, true, &mut kt);
             div.par_iter_mut()
                 .zip(kt.par_iter())
                 .for_each(|(d, &t)| *d = rho * t + beta * *d);
-            let mut xs = fft.forward(&div);
-            xs.par_iter_mut()
+            fft.forward_into(&div, &mut s_div);
+            s_div
+                .par_iter_mut()
                 .zip(den.par_iter())
                 .for_each(|(x, d)| *x *= scale / d);
-            x = fft.inverse(&xs);
+            fft.inverse_into(&s_div, &mut x);
             k.convolve_into(&x, width, false, &mut kx);
         } else {
-            let s_ua = fft.forward(&ua);
-            let s_div = fft.forward(&div);
-            let xs: Vec<C32> = s_ua
-                .par_iter()
-                .zip(s_div.par_iter())
+            fft.forward_into(&ua, &mut s_ua);
+            fft.forward_into(&div, &mut s_div);
+            // The new spectrum of x in place of `s_div`, then that of Kx in place of `s_ua`.
+            s_div
+                .par_iter_mut()
+                .zip(s_ua.par_iter())
                 .zip(kspec.par_iter().zip(den.par_iter()))
-                .map(|((su, sd), (k, d))| (k.conj() * *su * rho + *sd * beta) * (scale / d))
-                .collect();
-            x = fft.inverse(&xs);
-            let kxs: Vec<C32> = xs
-                .par_iter()
-                .zip(kspec.par_iter())
-                .map(|(x, k)| x * k)
-                .collect();
-            kx = fft.inverse(&kxs);
+                .for_each(|((sd, su), (k, d))| {
+                    *sd = (k.conj() * *su * rho + *sd * beta) * (scale / d)
+                });
+            fft.inverse_into(&s_div, &mut x);
+            s_ua.par_iter_mut()
+                .zip(s_div.par_iter().zip(kspec.par_iter()))
+                .for_each(|(o, (x, k))| *o = x * k);
+            fft.inverse_into(&s_ua, &mut kx);
         }
-        (gx, gy) = grad(&x, width);
+        grad_into(&x, width, &mut gx, &mut gy);
         // Dual ascent.
         a.par_iter_mut()
             .zip(kx.par_iter().zip(u.par_iter()))

@@ -36,34 +36,43 @@ pub(super) fn kernel_step(
     start: &[f64],
 ) -> Vec<f64> {
     let scale = 1.0 / (fft.height * fft.width) as f32;
+    let n = fft.height * fft.width;
+    // Buffers shared by every operator application (the arithmetic is the same as with fresh
+    // ones): a plane, two spectra, and the two convolved planes.
+    let mut plane = vec![0.0f32; n];
+    let mut spec = vec![C32::new(0.0, 0.0); fft.spec_len()];
+    let mut acc = vec![C32::new(0.0, 0.0); fft.spec_len()];
+    let mut conv = [vec![0.0f32; n], vec![0.0f32; n]];
     // Σ_d Lᵀ_d (M ⊙ v_d) as a kernel window.
-    let adjoint = |v: [Vec<f32>; 2]| -> Vec<f64> {
-        let mut acc = vec![C32::new(0.0, 0.0); fft.spec_len()];
+    let adjoint = |v: [&[f32]; 2],
+                   plane: &mut Vec<f32>,
+                   spec: &mut Vec<C32>,
+                   acc: &mut Vec<C32>|
+     -> Vec<f64> {
+        acc.fill(C32::new(0.0, 0.0));
         for (d, vd) in v.iter().enumerate() {
-            let masked: Vec<f32> = vd
-                .par_iter()
-                .zip(mask.par_iter())
-                .map(|(a, m)| a * m)
-                .collect();
-            let s = fft.forward(&masked);
+            plane
+                .par_iter_mut()
+                .zip(vd.par_iter().zip(mask.par_iter()))
+                .for_each(|(o, (a, m))| *o = a * m);
+            fft.forward_into(plane, spec);
             acc.par_iter_mut()
-                .zip(s.par_iter().zip(latent[d].par_iter()))
+                .zip(spec.par_iter().zip(latent[d].par_iter()))
                 .for_each(|(a, (s, l))| *a += l.conj() * s * scale);
         }
-        window(&fft.inverse(&acc), fft, ks)
+        fft.inverse_into(acc, plane);
+        window(plane, fft, ks)
     };
-    let b = adjoint([blurred[0].to_vec(), blurred[1].to_vec()]);
-    let apply = |k: &[f64]| -> Vec<f64> {
-        let kspec = fft.kernel_spectrum(ks, ks, |x, y| k[y * ks + x]);
-        let conv = |d: usize| -> Vec<f32> {
-            let p: Vec<C32> = kspec
-                .par_iter()
-                .zip(latent[d].par_iter())
-                .map(|(k, l)| k * l * scale)
-                .collect();
-            fft.inverse(&p)
-        };
-        let mut out = adjoint([conv(0), conv(1)]);
+    let b = adjoint(blurred, &mut plane, &mut spec, &mut acc);
+    let mut apply = |k: &[f64]| -> Vec<f64> {
+        fft.kernel_spectrum_into(ks, ks, |x, y| k[y * ks + x], &mut plane, &mut spec);
+        for (d, out) in conv.iter_mut().enumerate() {
+            acc.par_iter_mut()
+                .zip(spec.par_iter().zip(latent[d].par_iter()))
+                .for_each(|(p, (k, l))| *p = k * l * scale);
+            fft.inverse_into(&acc, out);
+        }
+        let mut out = adjoint([&conv[0], &conv[1]], &mut plane, &mut spec, &mut acc);
         for ((o, v), g) in out.iter_mut().zip(k).zip(gamma) {
             *o += g * v;
         }

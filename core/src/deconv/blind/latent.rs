@@ -4,7 +4,7 @@
 use rayon::prelude::*;
 
 use super::super::fft::{C32, Fft2};
-use super::super::ops::{grad, grad_adjoint};
+use super::super::ops::{grad_adjoint_into, grad_into};
 use crate::error::CoreResult;
 use crate::progress::Progress;
 
@@ -63,9 +63,13 @@ pub(super) fn l0_restore(
     // Start from the blurred image itself (as the authors' code).
     let mut s = fft.inverse(&y_spec.iter().map(|v| v * scale).collect::<Vec<C32>>());
     let mut beta = 2.0 * lambda;
+    // Buffers reused by every β step (the arithmetic is the same as with fresh ones).
+    let n = s.len();
+    let (mut h, mut v, mut div) = (vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n]);
+    let mut xs = vec![C32::new(0.0, 0.0); fft.spec_len()];
     while beta < BETA_MAX {
         progress.check()?;
-        let (mut h, mut v) = grad(&s, fft.width);
+        grad_into(&s, fft.width, &mut h, &mut v);
         let thr = lambda / beta;
         h.par_iter_mut().zip(v.par_iter_mut()).for_each(|(h, v)| {
             if *h * *h + *v * *v < thr {
@@ -73,15 +77,13 @@ pub(super) fn l0_restore(
                 *v = 0.0;
             }
         });
-        let div = grad_adjoint(&h, &v, fft.width);
-        let ds = fft.forward(&div);
-        let xs: Vec<C32> = kty
-            .par_iter()
-            .zip(ds.par_iter())
+        grad_adjoint_into(&h, &v, fft.width, &mut div);
+        fft.forward_into(&div, &mut xs);
+        xs.par_iter_mut()
+            .zip(kty.par_iter())
             .zip(k2.par_iter().zip(dpow.par_iter()))
-            .map(|((a, d), (k2, dp))| (a + d * beta) * (scale / (k2 + beta * dp)))
-            .collect();
-        s = fft.inverse(&xs);
+            .for_each(|((d, a), (k2, dp))| *d = (a + *d * beta) * (scale / (k2 + beta * dp)));
+        fft.inverse_into(&xs, &mut s);
         beta *= 2.0;
     }
     Ok(s)
