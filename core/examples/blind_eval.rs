@@ -7,9 +7,9 @@
 //! editing images.
 //!
 //! ```text
-//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|eval2|eval3|eval4|eval5|eval6|eval7|eval8|levin|levin-synth|time [--only TEXT] [-v]
+//! cargo run -p caliper-core --release --example blind_eval -- tune|tremor|texture|eval|eval2|eval3|eval4|eval5|eval6|eval7|eval8|eval9|levin|levin-synth|time [--only TEXT] [-v]
 //! cargo run -p caliper-core --release --example blind_eval -- size|size-tremor|size-texture|size-eval|starts
-//! cargo run -p caliper-core --release --example blind_eval -- thresholds tune|tremor|texture|levin|levin-synth|eval5|eval6|eval7|eval8
+//! cargo run -p caliper-core --release --example blind_eval -- thresholds tune|tremor|texture|levin|levin-synth|eval5|eval6|eval7|eval8|eval9
 //! ```
 //!
 //! Sharp images come from `CALIPER_BLIND_DATA` (default `../shared/data`, i.e. the shared data
@@ -438,8 +438,11 @@ enum Split {
     Eval6,
     /// The same with seeds from 61 000 001 (used 2026-12-07, the shipped estimator).
     Eval7,
-    /// The same with seeds from 71 000 001: the next confirmation split, unused until then.
+    /// The same with seeds from 71 000 001 (used once, 2026-12-08, the shipped estimator).
     Eval8,
+    /// The same with seeds from 101 000 001 (81 and 91 million seed the `large` modes): the
+    /// next confirmation split, unused until then.
+    Eval9,
     /// Levin et al. 2009's real camera-shake set from `CALIPER_LEVIN_DIR` (never tuned on):
     /// the captured blurred images ([`levin`]).
     Levin,
@@ -460,6 +463,7 @@ impl Split {
                 | Split::Eval6
                 | Split::Eval7
                 | Split::Eval8
+                | Split::Eval9
         )
     }
 }
@@ -555,6 +559,7 @@ fn cases(root: &Path, split: Split) -> Vec<Case> {
         Split::Eval6 => 51_000_001,
         Split::Eval7 => 61_000_001,
         Split::Eval8 => 71_000_001,
+        Split::Eval9 => 101_000_001,
     };
     let mut srcs: Vec<(String, Option<textures::Source>)> = sources(root, split)
         .into_iter()
@@ -1274,6 +1279,7 @@ fn main() {
         Some("eval6") => run(Split::Eval6, only, verbose),
         Some("eval7") => run(Split::Eval7, only, verbose),
         Some("eval8") => run(Split::Eval8, only, verbose),
+        Some("eval9") => run(Split::Eval9, only, verbose),
         Some("levin") => run(Split::Levin, only, verbose),
         Some("levin-synth") => run(Split::LevinSynth, only, verbose),
         Some("time") => time(),
@@ -1299,6 +1305,7 @@ fn main() {
             Some("eval6") => thresholds(Split::Eval6),
             Some("eval7") => thresholds(Split::Eval7),
             Some("eval8") => thresholds(Split::Eval8),
+            Some("eval9") => thresholds(Split::Eval9),
             Some(other) => {
                 eprintln!("thresholds: {other}? tune|tremor|texture|levin|levin-synth")
             }
@@ -1307,7 +1314,7 @@ fn main() {
         Some("size-texture") => sizes(Split::Texture),
         Some("size-eval") => sizes(Split::Eval),
         _ => eprintln!(
-            "usage: blind_eval tune|tremor|texture|eval|eval2|eval3|eval4|eval5|eval6|eval7|eval8|levin|levin-synth|time|large|large-eval|huge [SIDE]|size|size-tremor|size-texture|size-eval|starts|thresholds [SPLIT] [--only TEXT] [-v]"
+            "usage: blind_eval tune|tremor|texture|eval|eval2|eval3|eval4|eval5|eval6|eval7|eval8|eval9|levin|levin-synth|time|large|large-eval|huge [SIDE]|size|size-tremor|size-texture|size-eval|starts|thresholds [SPLIT] [--only TEXT] [-v]"
         ),
     }
 }

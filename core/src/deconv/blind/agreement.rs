@@ -7,9 +7,9 @@
 //! the one kept is then usually wrong as well. Measured on the tuning splits of
 //! `examples/blind_eval.rs` (TUNE, TREMOR, TEXTURE and Levin et al.'s two sets, 188 cases):
 //! with agreement below [`UNCERTAIN_AGREEMENT`] 34 cases, 8 of them (24 %) at error ratio ≤ 3;
-//! at or above it 154 cases, 103 (67 %) at ratio ≤ 3, against 59 % over all. On the seven
-//! held-out splits (EVAL to EVAL7; 336 cases) 77 are flagged, 15 of them at ratio ≤ 3,
-//! against 166 of the other 259. The sign misses the failures where both runs collapse onto
+//! at or above it 154 cases, 103 (67 %) at ratio ≤ 3, against 59 % over all. On the eight
+//! held-out splits (EVAL to EVAL8; 384 cases) 85 are flagged, 19 of them at ratio ≤ 3,
+//! against 192 of the other 299. The sign misses the failures where both runs collapse onto
 //! the same wrong kernel (all of Levin et al.'s captured failures), so a kernel that passes
 //! is not thereby right.
 //!
