@@ -44,25 +44,22 @@ pub(super) fn kernel_step(
     let mut acc = vec![C32::new(0.0, 0.0); fft.spec_len()];
     let mut conv = [vec![0.0f32; n], vec![0.0f32; n]];
     // Σ_d Lᵀ_d (M ⊙ v_d) as a kernel window.
-    let adjoint = |v: [&[f32]; 2],
-                   plane: &mut Vec<f32>,
-                   spec: &mut Vec<C32>,
-                   acc: &mut Vec<C32>|
-     -> Vec<f64> {
-        acc.fill(C32::new(0.0, 0.0));
-        for (d, vd) in v.iter().enumerate() {
-            plane
-                .par_iter_mut()
-                .zip(vd.par_iter().zip(mask.par_iter()))
-                .for_each(|(o, (a, m))| *o = a * m);
-            fft.forward_into(plane, spec);
-            acc.par_iter_mut()
-                .zip(spec.par_iter().zip(latent[d].par_iter()))
-                .for_each(|(a, (s, l))| *a += l.conj() * s * scale);
-        }
-        fft.inverse_into(acc, plane);
-        window(plane, fft, ks)
-    };
+    let adjoint =
+        |v: [&[f32]; 2], plane: &mut [f32], spec: &mut [C32], acc: &mut [C32]| -> Vec<f64> {
+            acc.fill(C32::new(0.0, 0.0));
+            for (d, vd) in v.iter().enumerate() {
+                plane
+                    .par_iter_mut()
+                    .zip(vd.par_iter().zip(mask.par_iter()))
+                    .for_each(|(o, (a, m))| *o = a * m);
+                fft.forward_into(plane, spec);
+                acc.par_iter_mut()
+                    .zip(spec.par_iter().zip(latent[d].par_iter()))
+                    .for_each(|(a, (s, l))| *a += l.conj() * s * scale);
+            }
+            fft.inverse_into(acc, plane);
+            window(plane, fft, ks)
+        };
     let b = adjoint(blurred, &mut plane, &mut spec, &mut acc);
     let mut apply = |k: &[f64]| -> Vec<f64> {
         fft.kernel_spectrum_into(ks, ks, |x, y| k[y * ks + x], &mut plane, &mut spec);
